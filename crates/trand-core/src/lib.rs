@@ -1,0 +1,18 @@
+//! Core types of trand, shared by every other crate.
+//!
+//! * [`camera`]: the pinhole camera and *the* pixel-centre convention of the whole project.
+//! * [`surfels`]: the struct-of-arrays parameter store of 2D Gaussian surfels (raw, pre-activation values).
+//! * [`sh`]: real spherical harmonics up to degree 3 (constants and basis of the 3DGS/2DGS family).
+//! * [`real`]: a tiny scalar trait so numeric kernels run in `f32` for speed and in `f64` for
+//!   finite-difference tests, from one source.
+//! * [`math`]: activations and quaternion helpers.
+
+pub mod camera;
+pub mod math;
+pub mod real;
+pub mod sh;
+pub mod surfels;
+
+pub use camera::{Camera, CameraError, Intrinsics};
+pub use real::Real;
+pub use surfels::{Surfels, SurfelsError, DEFAULT_NUM_OBJECTS};
