@@ -1,0 +1,71 @@
+//! Per-tile buffer layout shared by the forward and backward kernels.
+//!
+//! The forward pass writes, for every tile, one block of `256 × channels` values in channel-planar
+//! order (`block[c·256 + pixel]`, pixel = `ly·16 + lx`). The block holds both the rendered outputs and
+//! the per-pixel state the backward pass needs (final transmittance, distortion moments); a second,
+//! integer block holds the index of the last blended surfel and of the median surfel per pixel. The
+//! blocks are converted to row-major images once the tiles are done.
+
+use crate::constants::TILE_PIXELS;
+
+/// Channel offsets inside a tile block. Mask and object channels exist only when requested.
+#[derive(Clone, Copy, Debug)]
+pub struct Layout {
+    pub num_objects: usize,
+    pub has_mask: bool,
+    pub has_objects: bool,
+    pub rgb: usize,
+    pub mask: usize,
+    pub obj: usize,
+    pub alpha: usize,
+    pub depth: usize,
+    pub median: usize,
+    pub normal: usize,
+    pub dist: usize,
+    pub t_final: usize,
+    pub m1: usize,
+    pub m2: usize,
+    pub channels: usize,
+}
+
+impl Layout {
+    pub fn new(num_objects: usize, has_mask: bool, has_objects: bool) -> Self {
+        let rgb = 0;
+        let mask = rgb + 3;
+        let obj = mask + if has_mask { 3 } else { 0 };
+        let alpha = obj + if has_objects { num_objects } else { 0 };
+        let depth = alpha + 1;
+        let median = depth + 1;
+        let normal = median + 1;
+        let dist = normal + 3;
+        let t_final = dist + 1;
+        let m1 = t_final + 1;
+        let m2 = m1 + 1;
+        Self {
+            num_objects,
+            has_mask,
+            has_objects,
+            rgb,
+            mask,
+            obj,
+            alpha,
+            depth,
+            median,
+            normal,
+            dist,
+            t_final,
+            m1,
+            m2,
+            channels: m2 + 1,
+        }
+    }
+
+    /// Values per tile block.
+    pub fn block(&self) -> usize {
+        self.channels * TILE_PIXELS
+    }
+}
+
+/// Per-pixel integer state: `last[p]` (one past the last blended surfel's list position, 0 = none) and
+/// `median[p]` (list position of the median surfel, `u32::MAX` = none). Two planes of 256.
+pub const INT_CHANNELS: usize = 2;

@@ -1,0 +1,187 @@
+//! Read access to surfel parameters in any precision, and a generic parameter/gradient container.
+//!
+//! Production code stores parameters as `f32` in [`trand_core::Surfels`]; the finite-difference tests
+//! need the very same rasterizer to run on `f64` parameters. [`SurfelParams`] abstracts over both:
+//! the preprocess stage is the only reader, once per surfel per render.
+
+use trand_core::{sh::num_coeffs, Real, Surfels};
+
+/// Per-surfel parameter access in precision `R` (raw, pre-activation values; see [`Surfels`]).
+pub trait SurfelParams<R: Real>: Sync {
+    fn len(&self) -> usize;
+    fn sh_degree(&self) -> u32;
+    fn num_objects(&self) -> usize;
+    fn mean(&self, i: usize) -> [R; 3];
+    fn log_scale(&self, i: usize) -> [R; 2];
+    fn quat(&self, i: usize) -> [R; 4];
+    fn opacity_logit(&self, i: usize) -> R;
+    /// RGB SH coefficient `k` (0 = DC) of channel `ch`.
+    fn sh(&self, i: usize, k: usize, ch: usize) -> R;
+    /// Mask-colour SH coefficient `k` of channel `ch`.
+    fn mask_sh(&self, i: usize, k: usize, ch: usize) -> R;
+    fn obj_logit(&self, i: usize, k: usize) -> R;
+}
+
+impl<R: Real> SurfelParams<R> for Surfels {
+    fn len(&self) -> usize {
+        Surfels::len(self)
+    }
+    fn sh_degree(&self) -> u32 {
+        self.sh_degree
+    }
+    fn num_objects(&self) -> usize {
+        self.num_objects
+    }
+    #[inline]
+    fn mean(&self, i: usize) -> [R; 3] {
+        self.means[i].map(R::from_f32)
+    }
+    #[inline]
+    fn log_scale(&self, i: usize) -> [R; 2] {
+        self.log_scales[i].map(R::from_f32)
+    }
+    #[inline]
+    fn quat(&self, i: usize) -> [R; 4] {
+        self.quats[i].map(R::from_f32)
+    }
+    #[inline]
+    fn opacity_logit(&self, i: usize) -> R {
+        R::from_f32(self.opacity_logits[i])
+    }
+    #[inline]
+    fn sh(&self, i: usize, k: usize, ch: usize) -> R {
+        if k == 0 {
+            R::from_f32(self.sh_dc[i][ch])
+        } else {
+            R::from_f32(self.sh_rest[i * self.rest_stride() + (k - 1) * 3 + ch])
+        }
+    }
+    #[inline]
+    fn mask_sh(&self, i: usize, k: usize, ch: usize) -> R {
+        if k == 0 {
+            R::from_f32(self.mask_dc[i][ch])
+        } else {
+            R::from_f32(self.mask_rest[i * self.rest_stride() + (k - 1) * 3 + ch])
+        }
+    }
+    #[inline]
+    fn obj_logit(&self, i: usize, k: usize) -> R {
+        R::from_f32(self.obj_logits[i * self.num_objects + k])
+    }
+}
+
+/// Surfel parameters (or gradients) in precision `R`, struct of arrays, same layout as [`Surfels`]
+/// except that the SH arrays hold all `(d+1)²` coefficients per channel, `[surfel][coeff][channel]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParamsOf<R> {
+    pub sh_degree: u32,
+    pub num_objects: usize,
+    pub means: Vec<[R; 3]>,
+    pub log_scales: Vec<[R; 2]>,
+    pub quats: Vec<[R; 4]>,
+    pub opacity_logits: Vec<R>,
+    pub sh: Vec<R>,
+    pub mask_sh: Vec<R>,
+    pub obj_logits: Vec<R>,
+}
+
+impl<R: Real> ParamsOf<R> {
+    /// Zero-filled container for `n` surfels.
+    pub fn zeros(n: usize, sh_degree: u32, num_objects: usize) -> Self {
+        let nc = num_coeffs(sh_degree) * 3;
+        Self {
+            sh_degree,
+            num_objects,
+            means: vec![[R::ZERO; 3]; n],
+            log_scales: vec![[R::ZERO; 2]; n],
+            quats: vec![[R::ZERO; 4]; n],
+            opacity_logits: vec![R::ZERO; n],
+            sh: vec![R::ZERO; n * nc],
+            mask_sh: vec![R::ZERO; n * nc],
+            obj_logits: vec![R::ZERO; n * num_objects],
+        }
+    }
+
+    /// Converts `f32` surfels to precision `R`.
+    pub fn from_surfels(s: &Surfels) -> Self {
+        let n = s.len();
+        let nc = num_coeffs(s.sh_degree);
+        let mut p = Self::zeros(n, s.sh_degree, s.num_objects);
+        for i in 0..n {
+            p.means[i] = SurfelParams::<R>::mean(s, i);
+            p.log_scales[i] = SurfelParams::<R>::log_scale(s, i);
+            p.quats[i] = SurfelParams::<R>::quat(s, i);
+            p.opacity_logits[i] = SurfelParams::<R>::opacity_logit(s, i);
+            for k in 0..nc {
+                for ch in 0..3 {
+                    p.sh[(i * nc + k) * 3 + ch] = SurfelParams::<R>::sh(s, i, k, ch);
+                    p.mask_sh[(i * nc + k) * 3 + ch] = SurfelParams::<R>::mask_sh(s, i, k, ch);
+                }
+            }
+            for k in 0..s.num_objects {
+                p.obj_logits[i * s.num_objects + k] = SurfelParams::<R>::obj_logit(s, i, k);
+            }
+        }
+        p
+    }
+
+    /// Writes the values into an `f32` [`Surfels`] of the same shape (e.g. gradients for the optimiser).
+    pub fn write_into(&self, s: &mut Surfels) {
+        let n = self.means.len();
+        assert_eq!(s.len(), n, "surfel count");
+        let nc = num_coeffs(self.sh_degree);
+        let rs = s.rest_stride();
+        for i in 0..n {
+            s.means[i] = self.means[i].map(R::to_f32);
+            s.log_scales[i] = self.log_scales[i].map(R::to_f32);
+            s.quats[i] = self.quats[i].map(R::to_f32);
+            s.opacity_logits[i] = self.opacity_logits[i].to_f32();
+            for ch in 0..3 {
+                s.sh_dc[i][ch] = self.sh[i * nc * 3 + ch].to_f32();
+                s.mask_dc[i][ch] = self.mask_sh[i * nc * 3 + ch].to_f32();
+            }
+            for k in 1..nc.min(rs / 3 + 1) {
+                for ch in 0..3 {
+                    s.sh_rest[i * rs + (k - 1) * 3 + ch] = self.sh[(i * nc + k) * 3 + ch].to_f32();
+                    s.mask_rest[i * rs + (k - 1) * 3 + ch] = self.mask_sh[(i * nc + k) * 3 + ch].to_f32();
+                }
+            }
+            for k in 0..self.num_objects {
+                s.obj_logits[i * self.num_objects + k] = self.obj_logits[i * self.num_objects + k].to_f32();
+            }
+        }
+    }
+}
+
+impl<R: Real> SurfelParams<R> for ParamsOf<R> {
+    fn len(&self) -> usize {
+        self.means.len()
+    }
+    fn sh_degree(&self) -> u32 {
+        self.sh_degree
+    }
+    fn num_objects(&self) -> usize {
+        self.num_objects
+    }
+    fn mean(&self, i: usize) -> [R; 3] {
+        self.means[i]
+    }
+    fn log_scale(&self, i: usize) -> [R; 2] {
+        self.log_scales[i]
+    }
+    fn quat(&self, i: usize) -> [R; 4] {
+        self.quats[i]
+    }
+    fn opacity_logit(&self, i: usize) -> R {
+        self.opacity_logits[i]
+    }
+    fn sh(&self, i: usize, k: usize, ch: usize) -> R {
+        self.sh[(i * num_coeffs(self.sh_degree) + k) * 3 + ch]
+    }
+    fn mask_sh(&self, i: usize, k: usize, ch: usize) -> R {
+        self.mask_sh[(i * num_coeffs(self.sh_degree) + k) * 3 + ch]
+    }
+    fn obj_logit(&self, i: usize, k: usize) -> R {
+        self.obj_logits[i * self.num_objects + k]
+    }
+}

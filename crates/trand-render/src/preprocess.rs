@@ -1,0 +1,399 @@
+//! Stage 1: per-surfel preprocess (forward) and its vector-Jacobian product (backward).
+//!
+//! For surfel `i` with mean `μ`, scales `s_u, s_v`, rotation columns `t_u, t_v, t_w` (2DGS eq. 1–5):
+//!
+//! * **Ray-splat transform** `T = K · [s_u R_cw t_u | s_v R_cw t_v | R_cw μ + t_cw]` (3×3, rows
+//!   `T_u, T_v, T_w`). It maps splat-plane homogeneous coordinates `(u, v, 1)` to screen homogeneous
+//!   coordinates `(x·z, y·z, z)`; `T_w · (u, v, 1)` is the camera depth of the disk point.
+//! * **3σ bounding box** from the screen-space dual conic of the contour `u² + v² = 9`:
+//!   `t = (9, 9, −1)`, `d = Σ t_k T_{w,k}²`, `f = t/d`, centre `p_x = Σ f_k T_{u,k} T_{w,k}` and half-width
+//!   `h_x = √(p_x² − Σ f_k T_{u,k}²)` (likewise y). The centre is also the centre of the screen-space
+//!   low-pass filter. When `d ≥ 0` the contour reaches the camera plane and the box is unbounded: such a
+//!   surfel (a large disk grazing the camera) is culled, where the CUDA reference silently bins a
+//!   meaningless box.
+//! * **Binning radius** `r = ⌈max(h_x, h_y, 3·√2/2)⌉` and tile rectangle as the reference's `getRect`.
+//! * **Evaluation box**: pixels where `α = o·G ≥ 1/255` satisfy `ρ ≤ 2 ln(255 o)`. The box of that
+//!   region (object-space ellipse ∪ filter disc, plus one pixel of margin) bounds the pixels the
+//!   rasterizer evaluates. It gives the same image as evaluating every pixel of every binned tile (what
+//!   the reference does) at a fraction of the cost.
+//! * **Normal** `n = R_cw t_w`, flipped to face the camera (`−p_view · n > 0`); `cos = 0` culls.
+//! * **Colours**: SH evaluated along `normalize(μ − C)`, `+½`, clamped at 0 (clamped channels get no
+//!   gradient); the same for the mask colours; **object probabilities** = softmax of the logits.
+
+use trand_core::{
+    math::{normalize_vjp, quat_to_rotmat, rotmat_vjp, sigmoid, softmax, softmax_vjp},
+    sh::{basis, basis_jacobian, num_coeffs},
+    Real,
+};
+
+use crate::camera::{dot, CamR};
+use crate::constants::{FILTER_INV_SQUARE, FILTER_RADIUS, MIN_ALPHA, SIGMA_CUTOFF, TILE};
+use crate::params::{ParamsOf, SurfelParams};
+
+/// A visible surfel after preprocess: everything the per-pixel kernels read.
+#[derive(Clone, Copy, Debug)]
+pub struct Proj<R> {
+    /// Index of the surfel in the parameter arrays.
+    pub index: u32,
+    pub t_u: [R; 3],
+    pub t_v: [R; 3],
+    pub t_w: [R; 3],
+    /// 3σ bounding-box centre in pixels (low-pass filter centre).
+    pub center: [R; 2],
+    /// Camera-space normal facing the camera.
+    pub normal: [R; 3],
+    pub opacity: R,
+    pub rgb: [R; 3],
+    pub mask: [R; 3],
+    /// Camera z of the mean: the depth-sort key.
+    pub depth: R,
+    /// Binning radius in pixels (the reference's `radii`, used by densification).
+    pub radius: f32,
+    /// Tile rectangle `[x0, y0, x1, y1)`.
+    pub tiles: [u32; 4],
+    /// Pixel evaluation box `[x0, y0, x1, y1]`, inclusive.
+    pub bbox: [i32; 4],
+    /// Bits 0–2: RGB channel clamped at 0; bits 3–5: mask channel clamped.
+    pub clamped: u8,
+    /// +1 or −1: the sign applied to `R_cw t_w` to face the camera.
+    pub normal_sign: R,
+}
+
+/// Upstream gradient of one surfel's preprocess outputs (reduced over all its pixels).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ProjGrad<R> {
+    /// ∂L/∂T, rows `T_u, T_v, T_w`.
+    pub t: [R; 9],
+    /// ∂L/∂(filter centre).
+    pub center: [R; 2],
+    pub rgb: [R; 3],
+    pub mask: [R; 3],
+    pub normal: [R; 3],
+    pub opacity: R,
+}
+
+/// Transform rows and derived quantities shared by forward and backward.
+struct Geometry<R> {
+    rot: [[R; 3]; 3],
+    qn: [R; 4],
+    scale: [R; 2],
+    cu: [R; 3],
+    cv: [R; 3],
+    pv: [R; 3],
+    t_u: [R; 3],
+    t_v: [R; 3],
+    t_w: [R; 3],
+}
+
+fn geometry<R: Real, P: SurfelParams<R>>(p: &P, i: usize, cam: &CamR<R>) -> Option<Geometry<R>> {
+    let mean = p.mean(i);
+    let ls = p.log_scale(i);
+    if !mean.iter().chain(&ls).all(|v| v.is_finite()) {
+        return None;
+    }
+    let (rot, qn) = quat_to_rotmat(p.quat(i))?;
+    let scale = [ls[0].exp(), ls[1].exp()];
+    if !(scale[0].is_finite() && scale[1].is_finite()) {
+        return None;
+    }
+    let tu = [rot[0][0], rot[1][0], rot[2][0]];
+    let tv = [rot[0][1], rot[1][1], rot[2][1]];
+    let ru = cam.rotate(tu);
+    let rv = cam.rotate(tv);
+    let cu = ru.map(|v| v * scale[0]);
+    let cv = rv.map(|v| v * scale[1]);
+    let rm = cam.rotate(mean);
+    let pv = [rm[0] + cam.trans[0], rm[1] + cam.trans[1], rm[2] + cam.trans[2]];
+    let t_u = [cam.fx * cu[0] + cam.cx * cu[2], cam.fx * cv[0] + cam.cx * cv[2], cam.fx * pv[0] + cam.cx * pv[2]];
+    let t_v = [cam.fy * cu[1] + cam.cy * cu[2], cam.fy * cv[1] + cam.cy * cv[2], cam.fy * pv[1] + cam.cy * pv[2]];
+    let t_w = [cu[2], cv[2], pv[2]];
+    Some(Geometry { rot, qn, scale, cu, cv, pv, t_u, t_v, t_w })
+}
+
+/// Screen-space box of the contour `u² + v² = c2`: `(centre, half-extent)`, `None` when the contour is
+/// not entirely in front of the camera.
+#[inline]
+fn conic_box<R: Real>(t_u: [R; 3], t_v: [R; 3], t_w: [R; 3], c2: R) -> Option<([R; 2], [R; 2], R)> {
+    let t = [c2, c2, -R::ONE];
+    let d = t[0] * t_w[0] * t_w[0] + t[1] * t_w[1] * t_w[1] + t[2] * t_w[2] * t_w[2];
+    if !(d < R::ZERO) {
+        return None;
+    }
+    let f = [t[0] / d, t[1] / d, t[2] / d];
+    let px = f[0] * t_u[0] * t_w[0] + f[1] * t_u[1] * t_w[1] + f[2] * t_u[2] * t_w[2];
+    let py = f[0] * t_v[0] * t_w[0] + f[1] * t_v[1] * t_w[1] + f[2] * t_v[2] * t_w[2];
+    let qx = f[0] * t_u[0] * t_u[0] + f[1] * t_u[1] * t_u[1] + f[2] * t_u[2] * t_u[2];
+    let qy = f[0] * t_v[0] * t_v[0] + f[1] * t_v[1] * t_v[1] + f[2] * t_v[2] * t_v[2];
+    Some(([px, py], [px * px - qx, py * py - qy], d))
+}
+
+/// SH colour along `dir`, `+½`, clamped at zero; returns the colour and the clamp bits.
+#[inline]
+fn sh_colour<R: Real>(coeff: impl Fn(usize, usize) -> R, nc: usize, y: &[R; 16]) -> ([R; 3], u8) {
+    let mut c = [R::from_f64(0.5); 3];
+    let mut clamped = 0u8;
+    for (ch, cc) in c.iter_mut().enumerate() {
+        for (k, yk) in y.iter().enumerate().take(nc) {
+            *cc += coeff(k, ch) * *yk;
+        }
+        if *cc < R::ZERO {
+            *cc = R::ZERO;
+            clamped |= 1 << ch;
+        }
+    }
+    (c, clamped)
+}
+
+/// Unit view direction `normalize(μ − C)` and the distance `|μ − C|`.
+#[inline]
+fn view_dir<R: Real>(mean: [R; 3], cam: &CamR<R>) -> ([R; 3], R) {
+    let d = [mean[0] - cam.center[0], mean[1] - cam.center[1], mean[2] - cam.center[2]];
+    let n = dot(d, d).sqrt();
+    if n > R::ZERO { (d.map(|v| v / n), n) } else { ([R::ZERO, R::ZERO, R::ONE], R::ONE) }
+}
+
+/// Forward preprocess of surfel `i`. Writes the object probabilities into `probs` (length K) and returns
+/// `None` when the surfel is culled (behind the near plane, off-screen, degenerate or non-finite).
+pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
+    p: &P,
+    i: usize,
+    cam: &CamR<R>,
+    sh_degree: u32,
+    probs: &mut [R],
+) -> Option<Proj<R>> {
+    let g = geometry(p, i, cam)?;
+    if !(g.pv[2] > cam.near) {
+        return None;
+    }
+    let ol = p.opacity_logit(i);
+    if !ol.is_finite() {
+        return None;
+    }
+    let opacity = sigmoid(ol);
+    if opacity < R::from_f64(MIN_ALPHA) {
+        return None;
+    }
+    // Normal facing the camera.
+    let n = cam.rotate([g.rot[0][2], g.rot[1][2], g.rot[2][2]]);
+    let cos = -dot(g.pv, n);
+    if cos == R::ZERO {
+        return None;
+    }
+    let normal_sign = if cos < R::ZERO { -R::ONE } else { R::ONE };
+    let normal = n.map(|v| v * normal_sign);
+
+    // 3σ box: binning and filter centre.
+    let c2 = R::from_f64(SIGMA_CUTOFF * SIGMA_CUTOFF);
+    let (center, h2, _) = conic_box(g.t_u, g.t_v, g.t_w, c2)?;
+    let floor = R::from_f64(1e-4);
+    let (hx, hy) = (h2[0].max(floor).sqrt(), h2[1].max(floor).sqrt());
+    let radius = hx.max(hy).max(R::from_f64(FILTER_RADIUS)).ceil();
+    if !(radius.is_finite() && center[0].is_finite() && center[1].is_finite()) {
+        return None;
+    }
+    let (cx, cy, r) = (center[0].to_f64(), center[1].to_f64(), radius.to_f64());
+    let grid = [cam.tiles_x() as i64, cam.tiles_y() as i64];
+    let tile = TILE as f64;
+    let clamp_i = |v: f64, hi: i64| (v as i64).clamp(0, hi) as u32;
+    let tiles = [
+        clamp_i((cx - r) / tile, grid[0]),
+        clamp_i((cy - r) / tile, grid[1]),
+        clamp_i((cx + r + tile - 1.0) / tile, grid[0]),
+        clamp_i((cy + r + tile - 1.0) / tile, grid[1]),
+    ];
+    if tiles[0] >= tiles[2] || tiles[1] >= tiles[3] {
+        return None;
+    }
+
+    // Evaluation box: where o·G can reach 1/255.
+    let r2 = 2.0 * (opacity.to_f64() / MIN_ALPHA).ln();
+    let rf = (r2 / FILTER_INV_SQUARE).sqrt();
+    let mut bb = [cx - rf, cy - rf, cx + rf, cy + rf];
+    match conic_box(g.t_u, g.t_v, g.t_w, R::from_f64(r2)) {
+        Some((c, h2, _)) => {
+            let (hx, hy) = (h2[0].max(R::ZERO).sqrt().to_f64(), h2[1].max(R::ZERO).sqrt().to_f64());
+            let (ex, ey) = (c[0].to_f64(), c[1].to_f64());
+            bb = [bb[0].min(ex - hx), bb[1].min(ey - hy), bb[2].max(ex + hx), bb[3].max(ey + hy)];
+        }
+        None => bb = [f64::NEG_INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY],
+    }
+    let t = TILE as i64;
+    let bbox = [
+        ((bb[0].floor() - 1.0).max((tiles[0] as i64 * t) as f64)) as i32,
+        ((bb[1].floor() - 1.0).max((tiles[1] as i64 * t) as f64)) as i32,
+        ((bb[2].ceil() + 1.0).min((tiles[2] as i64 * t - 1).min(cam.width as i64 - 1) as f64)) as i32,
+        ((bb[3].ceil() + 1.0).min((tiles[3] as i64 * t - 1).min(cam.height as i64 - 1) as f64)) as i32,
+    ];
+    if bbox[0] > bbox[2] || bbox[1] > bbox[3] {
+        return None;
+    }
+
+    // Colours along the view direction.
+    let nc = num_coeffs(sh_degree);
+    let (dir, _) = view_dir(p.mean(i), cam);
+    let mut y = [R::ZERO; 16];
+    basis(sh_degree, dir, &mut y);
+    let (rgb, c1) = sh_colour(|k, ch| p.sh(i, k, ch), nc, &y);
+    let (mask, c2) = sh_colour(|k, ch| p.mask_sh(i, k, ch), nc, &y);
+    let k = p.num_objects();
+    let mut logits = [R::ZERO; 64];
+    let logits = &mut logits[..k];
+    for (j, l) in logits.iter_mut().enumerate() {
+        *l = p.obj_logit(i, j);
+    }
+    softmax(logits, probs);
+    if !rgb.iter().chain(&mask).chain(probs.iter()).all(|v| v.is_finite()) {
+        return None;
+    }
+    Some(Proj {
+        index: i as u32,
+        t_u: g.t_u,
+        t_v: g.t_v,
+        t_w: g.t_w,
+        center,
+        normal,
+        opacity,
+        rgb,
+        mask,
+        depth: g.pv[2],
+        radius: radius.to_f32(),
+        tiles,
+        bbox,
+        clamped: c1 | (c2 << 3),
+        normal_sign,
+    })
+}
+
+/// Backward of [`preprocess_one`]: accumulates ∂L/∂(raw parameters) of surfel `proj.index` into `out`
+/// (which must hold that surfel's slot; all other slots are untouched).
+#[allow(clippy::too_many_arguments)]
+pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
+    p: &P,
+    cam: &CamR<R>,
+    sh_degree: u32,
+    proj: &Proj<R>,
+    probs: &[R],
+    g: &ProjGrad<R>,
+    dprobs: &[R],
+    out: &mut SurfelGradSlot<'_, R>,
+) {
+    let i = proj.index as usize;
+    let geo = geometry(p, i, cam).expect("visible surfels have valid geometry");
+    let (t_u, t_v, t_w) = (geo.t_u, geo.t_v, geo.t_w);
+    let mut d_tu = [g.t[0], g.t[1], g.t[2]];
+    let mut d_tv = [g.t[3], g.t[4], g.t[5]];
+    let mut d_tw = [g.t[6], g.t[7], g.t[8]];
+
+    // Filter centre (3σ box centre) → T.
+    let c2 = R::from_f64(SIGMA_CUTOFF * SIGMA_CUTOFF);
+    let (center, _, d) = conic_box(t_u, t_v, t_w, c2).expect("visible surfels have a bounded box");
+    let tt = [c2, c2, -R::ONE];
+    let (gx, gy) = (g.center[0], g.center[1]);
+    let two = R::from_f64(2.0);
+    let s = (gx * center[0] + gy * center[1]) / d;
+    for k in 0..3 {
+        let f = tt[k] / d;
+        d_tu[k] += gx * f * t_w[k];
+        d_tv[k] += gy * f * t_w[k];
+        d_tw[k] += gx * f * t_u[k] + gy * f * t_v[k] - s * two * tt[k] * t_w[k];
+    }
+
+    // T = K·M → M (rows), then columns: M = [c_u | c_v | p_view].
+    let dm0 = d_tu.map(|v| v * cam.fx);
+    let dm1 = d_tv.map(|v| v * cam.fy);
+    let dm2 = [
+        d_tw[0] + cam.cx * d_tu[0] + cam.cy * d_tv[0],
+        d_tw[1] + cam.cx * d_tu[1] + cam.cy * d_tv[1],
+        d_tw[2] + cam.cx * d_tu[2] + cam.cy * d_tv[2],
+    ];
+    let a_u = cam.rotate_t([dm0[0], dm1[0], dm2[0]]);
+    let a_v = cam.rotate_t([dm0[1], dm1[1], dm2[1]]);
+    let mut d_mean = cam.rotate_t([dm0[2], dm1[2], dm2[2]]);
+    let rot = geo.rot;
+    let tu = [rot[0][0], rot[1][0], rot[2][0]];
+    let tv = [rot[0][1], rot[1][1], rot[2][1]];
+    let ds = [dot(a_u, tu), dot(a_v, tv)];
+    let d_tw_world = cam.rotate_t(g.normal.map(|v| v * proj.normal_sign));
+    let mut grot = [[R::ZERO; 3]; 3];
+    for r in 0..3 {
+        grot[r][0] = a_u[r] * geo.scale[0];
+        grot[r][1] = a_v[r] * geo.scale[1];
+        grot[r][2] = d_tw_world[r];
+    }
+    let dq = normalize_vjp(p.quat(i), rotmat_vjp(geo.qn, grot));
+    let _ = (geo.cu, geo.cv, geo.pv);
+
+    // Colours: SH coefficients and the view-direction term.
+    let nc = num_coeffs(sh_degree);
+    let (dir, dist) = view_dir(p.mean(i), cam);
+    let mut y = [R::ZERO; 16];
+    basis(sh_degree, dir, &mut y);
+    let mut jac = [[R::ZERO; 3]; 16];
+    basis_jacobian(sh_degree, dir, &mut jac);
+    let mut g_dir = [R::ZERO; 3];
+    for (set, dc, shift) in [(0usize, g.rgb, 0u8), (1, g.mask, 3)] {
+        for ch in 0..3 {
+            if proj.clamped & (1 << (ch as u8 + shift)) != 0 {
+                continue;
+            }
+            let gc = dc[ch];
+            for k in 0..nc {
+                let coeff = if set == 0 { p.sh(i, k, ch) } else { p.mask_sh(i, k, ch) };
+                let slot = if set == 0 { &mut *out.sh } else { &mut *out.mask_sh };
+                slot[k * 3 + ch] += y[k] * gc;
+                for a in 0..3 {
+                    g_dir[a] += coeff * gc * jac[k][a];
+                }
+            }
+        }
+    }
+    let gd = dot(g_dir, dir);
+    for a in 0..3 {
+        d_mean[a] += (g_dir[a] - gd * dir[a]) / dist;
+    }
+
+    let o = proj.opacity;
+    for a in 0..3 {
+        out.mean[a] += d_mean[a];
+    }
+    out.log_scale[0] += ds[0] * geo.scale[0];
+    out.log_scale[1] += ds[1] * geo.scale[1];
+    for a in 0..4 {
+        out.quat[a] += dq[a];
+    }
+    *out.opacity_logit += g.opacity * o * (R::ONE - o);
+    let mut dl = [R::ZERO; 64];
+    let dl = &mut dl[..probs.len()];
+    softmax_vjp(probs, dprobs, dl);
+    for (o, d) in out.obj_logits.iter_mut().zip(dl.iter()) {
+        *o += *d;
+    }
+}
+
+/// Mutable view of one surfel's slot in a [`ParamsOf`] gradient buffer.
+pub struct SurfelGradSlot<'a, R> {
+    pub mean: &'a mut [R; 3],
+    pub log_scale: &'a mut [R; 2],
+    pub quat: &'a mut [R; 4],
+    pub opacity_logit: &'a mut R,
+    pub sh: &'a mut [R],
+    pub mask_sh: &'a mut [R],
+    pub obj_logits: &'a mut [R],
+}
+
+impl<R: Real> ParamsOf<R> {
+    /// The slot of surfel `i`.
+    pub fn slot(&mut self, i: usize) -> SurfelGradSlot<'_, R> {
+        let nc = num_coeffs(self.sh_degree) * 3;
+        let k = self.num_objects;
+        SurfelGradSlot {
+            mean: &mut self.means[i],
+            log_scale: &mut self.log_scales[i],
+            quat: &mut self.quats[i],
+            opacity_logit: &mut self.opacity_logits[i],
+            sh: &mut self.sh[i * nc..(i + 1) * nc],
+            mask_sh: &mut self.mask_sh[i * nc..(i + 1) * nc],
+            obj_logits: &mut self.obj_logits[i * k..(i + 1) * k],
+        }
+    }
+}

@@ -1,0 +1,364 @@
+//! The public entry points: [`render`] (stages 1–3) and [`Rendered::backward`] (stages 4–6).
+
+use rayon::prelude::*;
+use trand_core::{Camera, CameraError, Real};
+
+use crate::backward::{backward_tile, rec, reduce_surfel, GradMaps};
+use crate::binning::{bin, Bins};
+use crate::camera::CamR;
+use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
+use crate::forward::raster_tile;
+use crate::layout::{Layout, INT_CHANNELS};
+use crate::params::{ParamsOf, SurfelParams};
+use crate::preprocess::{preprocess_backward_one, preprocess_one, Proj};
+
+/// The largest number of object channels the kernels support (fixed-size stack buffers).
+pub const MAX_OBJECTS: usize = 64;
+
+/// Which optional maps to render. RGB and the geometric maps (alpha, depth, median, normal,
+/// distortion) are always produced; the mask colour and the K-channel object map cost extra work per
+/// pixel and are rendered only when asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Maps {
+    /// RGB and geometry only (evaluation, TSDF fusion).
+    #[default]
+    Rgb,
+    /// Also the colour-coded mask image.
+    RgbMask,
+    /// Also the object-probability map.
+    RgbObjects,
+    /// Everything (TRAN-D training).
+    All,
+}
+
+
+impl Maps {
+    pub fn mask(self) -> bool {
+        matches!(self, Maps::RgbMask | Maps::All)
+    }
+    pub fn objects(self) -> bool {
+        matches!(self, Maps::RgbObjects | Maps::All)
+    }
+}
+
+/// Render settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Background colour of the RGB and mask images.
+    pub background: [f32; 3],
+    /// Near plane (metres): surfel centres and per-pixel hits closer than this are ignored.
+    pub near: f64,
+    /// SH degree used for colours (at most the parameters' degree; `None` = the parameters' degree).
+    pub sh_degree: Option<u32>,
+    pub maps: Maps,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self { background: [0.0; 3], near: DEFAULT_NEAR, sh_degree: None, maps: Maps::Rgb }
+    }
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum RenderError {
+    #[error("invalid camera: {0}")]
+    Camera(#[from] CameraError),
+    #[error("{0} object channels requested; the rasterizer supports 1 to {MAX_OBJECTS}")]
+    Objects(usize),
+    #[error("near plane {0} must be finite and positive")]
+    Near(f64),
+}
+
+/// Rendered maps (row-major, interleaved) plus the state the backward pass needs.
+#[derive(Clone, Debug)]
+pub struct Rendered<R> {
+    pub width: u32,
+    pub height: u32,
+    pub num_objects: usize,
+    /// `H·W·3`.
+    pub rgb: Vec<R>,
+    /// `H·W·3`, empty unless requested.
+    pub mask: Vec<R>,
+    /// `H·W·K`, empty unless requested.
+    pub objects: Vec<R>,
+    /// `H·W`: `1 − T_final`.
+    pub alpha: Vec<R>,
+    /// `H·W`: unnormalised depth `Σ w_i z_i`; see [`Rendered::expected_depth`].
+    pub depth: Vec<R>,
+    /// `H·W`: median depth (0 where nothing reached transmittance ½).
+    pub median: Vec<R>,
+    /// `H·W·3`: camera-space normal `Σ w_i n_i`.
+    pub normal: Vec<R>,
+    /// `H·W`: depth distortion.
+    pub distortion: Vec<R>,
+    /// Per surfel: binning radius in pixels, 0 when culled (densification statistics).
+    pub radii: Vec<f32>,
+    /// Number of (tile, surfel) pairs: the work measure.
+    pub num_pairs: usize,
+    saved: Saved<R>,
+}
+
+#[derive(Clone, Debug)]
+struct Saved<R> {
+    cam: CamR<R>,
+    settings: RenderSettings,
+    sh_degree: u32,
+    lay: Layout,
+    projs: Vec<Proj<R>>,
+    probs: Vec<R>,
+    bins: Bins,
+    blocks: Vec<R>,
+    iblocks: Vec<u32>,
+}
+
+/// Gradients of a scalar loss with respect to the rendered maps (row-major, `None` = zero).
+#[derive(Clone, Debug, Default)]
+pub struct OutputGrads<R> {
+    pub rgb: Option<Vec<R>>,
+    pub mask: Option<Vec<R>>,
+    pub objects: Option<Vec<R>>,
+    pub alpha: Option<Vec<R>>,
+    /// Gradient with respect to the unnormalised depth `Σ w z` (see [`OutputGrads::add_expected_depth`]).
+    pub depth: Option<Vec<R>>,
+    pub median: Option<Vec<R>>,
+    pub normal: Option<Vec<R>>,
+    pub distortion: Option<Vec<R>>,
+}
+
+/// Result of the backward pass.
+#[derive(Clone, Debug)]
+pub struct Gradients<R> {
+    /// ∂L/∂(raw parameters), same layout as the input parameters.
+    pub params: ParamsOf<R>,
+    /// Per surfel: the 2DGS densification gradient `(∂L/∂T_{u,2}·z·W/2, ∂L/∂T_{v,2}·z·H/2)` (2DGS §3.4):
+    /// the screen-space position gradient in NDC units, from the per-pixel kernel only.
+    pub densify: Vec<[R; 2]>,
+}
+
+impl<R: Real> Rendered<R> {
+    /// Expected depth `D / α` (0 where α = 0).
+    pub fn expected_depth(&self) -> Vec<R> {
+        self.depth.iter().zip(&self.alpha).map(|(&d, &a)| if a > R::ZERO { d / a } else { R::ZERO }).collect()
+    }
+
+    /// Visible surfel count.
+    pub fn num_visible(&self) -> usize {
+        self.saved.projs.len()
+    }
+
+    /// Stages 4–6: gradients of the loss with respect to every surfel parameter.
+    pub fn backward<P: SurfelParams<R>>(&self, params: &P, grads: &OutputGrads<R>) -> Gradients<R> {
+        let s = &self.saved;
+        let n_pix = (self.width * self.height) as usize;
+        let check = |v: &Option<Vec<R>>, ch: usize, name: &str| {
+            if let Some(v) = v {
+                assert_eq!(v.len(), n_pix * ch, "gradient map `{name}` has the wrong size");
+            }
+        };
+        check(&grads.rgb, 3, "rgb");
+        check(&grads.mask, 3, "mask");
+        check(&grads.objects, self.num_objects, "objects");
+        check(&grads.alpha, 1, "alpha");
+        check(&grads.depth, 1, "depth");
+        check(&grads.median, 1, "median");
+        check(&grads.normal, 3, "normal");
+        check(&grads.distortion, 1, "distortion");
+        let maps = GradMaps {
+            rgb: grads.rgb.as_deref(),
+            mask: grads.mask.as_deref(),
+            objects: grads.objects.as_deref(),
+            alpha: grads.alpha.as_deref(),
+            depth: grads.depth.as_deref(),
+            median: grads.median.as_deref(),
+            normal: grads.normal.as_deref(),
+            distortion: grads.distortion.as_deref(),
+        };
+        let k = self.num_objects;
+        let stride = rec::stride(k);
+        let bg = s.settings.background.map(R::from_f32);
+
+        // Stage 4: per-tile backward into pair records.
+        let mut pairs = vec![R::ZERO; s.bins.num_pairs() * stride];
+        let mut chunks = Vec::with_capacity(s.bins.num_tiles());
+        let mut rest: &mut [R] = &mut pairs;
+        for t in 0..s.bins.num_tiles() {
+            let len = (s.bins.tile_start[t + 1] - s.bins.tile_start[t]) as usize * stride;
+            let (a, b) = rest.split_at_mut(len);
+            chunks.push(a);
+            rest = b;
+        }
+        let block = s.lay.block();
+        chunks.into_par_iter().enumerate().with_min_len(4).for_each(|(t, chunk)| {
+            backward_tile(
+                t,
+                &s.bins,
+                &s.projs,
+                &s.probs,
+                &s.lay,
+                &s.cam,
+                bg,
+                &s.blocks[t * block..(t + 1) * block],
+                &s.iblocks[t * INT_CHANNELS * TILE_PIXELS..(t + 1) * INT_CHANNELS * TILE_PIXELS],
+                &maps,
+                chunk,
+            )
+        });
+
+        // Stages 5 and 6: reduce per surfel, then the preprocess VJP, in parallel over visible surfels.
+        let n = params.len();
+        let sh_deg = s.sh_degree;
+        let per_vis: Vec<(ParamsOf<R>, [R; 2])> = s
+            .projs
+            .par_iter()
+            .enumerate()
+            .with_min_len(64)
+            .map(|(j, proj)| {
+                let mut dprobs = [R::ZERO; MAX_OBJECTS];
+                let dprobs = &mut dprobs[..k];
+                let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
+                let mut one = ParamsOf::<R>::zeros(1, params.sh_degree(), k);
+                let probs = &s.probs[j * k..(j + 1) * k];
+                preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut one.slot(0));
+                let z = proj.t_w[2];
+                let half = R::from_f64(0.5);
+                let dens = [
+                    g.t[2] * z * R::from_f64(s.cam.width as f64) * half,
+                    g.t[5] * z * R::from_f64(s.cam.height as f64) * half,
+                ];
+                (one, dens)
+            })
+            .collect();
+        let mut out = ParamsOf::<R>::zeros(n, params.sh_degree(), k);
+        let mut densify = vec![[R::ZERO; 2]; n];
+        for (proj, (one, dens)) in s.projs.iter().zip(per_vis) {
+            let i = proj.index as usize;
+            let mut slot = out.slot(i);
+            *slot.mean = one.means[0];
+            *slot.log_scale = one.log_scales[0];
+            *slot.quat = one.quats[0];
+            *slot.opacity_logit = one.opacity_logits[0];
+            slot.sh.copy_from_slice(&one.sh);
+            slot.mask_sh.copy_from_slice(&one.mask_sh);
+            slot.obj_logits.copy_from_slice(&one.obj_logits);
+            densify[i] = dens;
+        }
+        Gradients { params: out, densify }
+    }
+}
+
+impl<R: Real> OutputGrads<R> {
+    /// Adds the gradient `g` of a loss on the *expected* depth `D/α` (0 where α = 0): chains it into the
+    /// unnormalised depth and alpha gradients.
+    pub fn add_expected_depth(&mut self, out: &Rendered<R>, g: &[R]) {
+        let n = out.alpha.len();
+        let gd = self.depth.get_or_insert_with(|| vec![R::ZERO; n]);
+        let ga = self.alpha.get_or_insert_with(|| vec![R::ZERO; n]);
+        for i in 0..n {
+            let a = out.alpha[i];
+            if a > R::ZERO {
+                gd[i] += g[i] / a;
+                ga[i] -= g[i] * out.depth[i] / (a * a);
+            }
+        }
+    }
+}
+
+/// Renders surfels from a camera (stages 1–3: preprocess, binning, tile rasterization).
+///
+/// Non-finite or degenerate surfels (NaN parameters, zero quaternions, infinite scales) are culled, so
+/// they never poison the image; an invalid camera is an error.
+pub fn render<R: Real, P: SurfelParams<R>>(
+    params: &P,
+    camera: &Camera,
+    settings: &RenderSettings,
+) -> Result<Rendered<R>, RenderError> {
+    camera.validate()?;
+    let k = params.num_objects();
+    if k == 0 || k > MAX_OBJECTS {
+        return Err(RenderError::Objects(k));
+    }
+    if !(settings.near.is_finite() && settings.near > 0.0) {
+        return Err(RenderError::Near(settings.near));
+    }
+    let cam = CamR::<R>::new(camera, settings.near);
+    let sh_degree = settings.sh_degree.map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
+    let n = params.len();
+
+    // Stage 1: preprocess, in parallel, kept in surfel order.
+    let pre: Vec<Option<(Proj<R>, [R; MAX_OBJECTS])>> = (0..n)
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let mut probs = [R::ZERO; MAX_OBJECTS];
+            preprocess_one(params, i, &cam, sh_degree, &mut probs[..k]).map(|p| (p, probs))
+        })
+        .collect();
+    let mut radii = vec![0.0f32; n];
+    let mut projs = Vec::with_capacity(n);
+    let mut probs = Vec::with_capacity(n * k);
+    for (p, pr) in pre.into_iter().flatten() {
+        radii[p.index as usize] = p.radius;
+        projs.push(p);
+        probs.extend_from_slice(&pr[..k]);
+    }
+
+    // Stage 2: binning.
+    let bins = bin(&projs, cam.tiles_x(), cam.tiles_y());
+
+    // Stage 3: per-tile rasterization into tile blocks.
+    let lay = Layout::new(k, settings.maps.mask(), settings.maps.objects());
+    let block = lay.block();
+    let n_tiles = bins.num_tiles();
+    let mut blocks = vec![R::ZERO; n_tiles * block];
+    let mut iblocks = vec![0u32; n_tiles * INT_CHANNELS * TILE_PIXELS];
+    let bg = settings.background.map(R::from_f32);
+    blocks
+        .par_chunks_mut(block)
+        .zip(iblocks.par_chunks_mut(INT_CHANNELS * TILE_PIXELS))
+        .enumerate()
+        .with_min_len(4)
+        .for_each(|(t, (b, ib))| raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, b, ib));
+
+    // Tile blocks → row-major maps.
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let tiles_x = cam.tiles_x() as usize;
+    let gather = |ch0: usize, nch: usize| -> Vec<R> {
+        let mut out = vec![R::ZERO; w * h * nch];
+        out.par_chunks_mut(w * nch).enumerate().for_each(|(y, row)| {
+            let (ty, ly) = (y / TILE as usize, y % TILE as usize);
+            for x in 0..w {
+                let t = ty * tiles_x + x / TILE as usize;
+                let idx = ly * TILE as usize + x % TILE as usize;
+                for c in 0..nch {
+                    row[x * nch + c] = blocks[t * block + (ch0 + c) * TILE_PIXELS + idx];
+                }
+            }
+        });
+        out
+    };
+    let rgb = gather(lay.rgb, 3);
+    let mask = if lay.has_mask { gather(lay.mask, 3) } else { Vec::new() };
+    let objects = if lay.has_objects { gather(lay.obj, k) } else { Vec::new() };
+    let alpha = gather(lay.alpha, 1);
+    let depth = gather(lay.depth, 1);
+    let median = gather(lay.median, 1);
+    let normal = gather(lay.normal, 3);
+    let distortion = gather(lay.dist, 1);
+    let num_pairs = bins.num_pairs();
+    Ok(Rendered {
+        width: cam.width,
+        height: cam.height,
+        num_objects: k,
+        rgb,
+        mask,
+        objects,
+        alpha,
+        depth,
+        median,
+        normal,
+        distortion,
+        radii,
+        num_pairs,
+        saved: Saved { cam, settings: *settings, sh_degree, lay, projs, probs, bins, blocks, iblocks },
+    })
+}
