@@ -141,6 +141,19 @@ impl<R: Real> Rendered<R> {
         self.depth.iter().zip(&self.alpha).map(|(&d, &a)| if a > R::ZERO { d / a } else { R::ZERO }).collect()
     }
 
+    /// A hash of every discrete decision of the forward pass (visible set, tile rectangles, last and
+    /// median surfel per pixel). Finite-difference tests skip perturbations that change it.
+    #[doc(hidden)]
+    pub fn decision_signature(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        self.saved.iblocks.hash(&mut h);
+        for p in &self.saved.projs {
+            (p.index, p.tiles, p.clamped).hash(&mut h);
+        }
+        h.finish()
+    }
+
     /// Visible surfel count.
     pub fn num_visible(&self) -> usize {
         self.saved.projs.len()
