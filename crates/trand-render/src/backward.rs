@@ -25,7 +25,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::{cross, CamR};
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
-use crate::forward::tile_pixels;
+use crate::forward::{span_mask, tile_pixels, Plane};
 use crate::intersect::{intersect, ndc_depth};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
@@ -78,159 +78,181 @@ pub fn backward_tile<R: Real>(
     let k_obj = lay.num_objects;
     let stride = rec::stride(k_obj);
     let (last, medpos) = ibuf.split_at(TILE_PIXELS);
+    let last: &[u32; TILE_PIXELS] = last.try_into().expect("256 pixels");
+    let medpos: &[u32; TILE_PIXELS] = medpos.try_into().expect("256 pixels");
     let max_last = last.iter().copied().max().unwrap_or(0) as usize;
     if max_last == 0 {
         return;
     }
+    let plane = |ch: usize| -> &[R] { &buf[ch * TILE_PIXELS..(ch + 1) * TILE_PIXELS] };
     let w_img = cam.width as usize;
     let has_mask = lay.has_mask && grads.mask.is_some();
     let has_obj = lay.has_objects && grads.objects.is_some();
+    let has_dist = grads.distortion.is_some();
+    let z = R::ZERO;
 
-    // Gather the upstream gradients into channel-planar tile arrays.
-    let nq = 3 + 3 + k_obj;
-    let mut g_col = vec![R::ZERO; nq * TILE_PIXELS]; // rgb 0..3, mask 3..6, obj 6..
-    let mut g_sc = vec![R::ZERO; 8 * TILE_PIXELS]; // alpha, depth, median, nx, ny, nz, dist, bg term
+    // Upstream gradients, gathered into channel planes.
+    let mut g_rgb: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut g_msk: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut g_nrm: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut g_obj: Vec<Plane<R>> = if has_obj { vec![[z; TILE_PIXELS]; k_obj] } else { Vec::new() };
+    let (mut g_a, mut g_d, mut g_med, mut g_dist, mut g_bg) =
+        ([z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS]);
+    let t_final = plane(lay.t_final);
     for y in ty0..=ty1 {
         for x in tx0..=tx1 {
             let idx = ((y - ty0) * TILE as i32 + (x - tx0)) as usize;
             let pix = y as usize * w_img + x as usize;
-            let mut bg_term = R::ZERO;
+            let mut bg_term = z;
             if let Some(g) = grads.rgb {
                 for c in 0..3 {
-                    g_col[c * TILE_PIXELS + idx] = g[pix * 3 + c];
+                    g_rgb[c][idx] = g[pix * 3 + c];
                     bg_term += background[c] * g[pix * 3 + c];
                 }
             }
             if has_mask {
                 let g = grads.mask.expect("checked");
                 for c in 0..3 {
-                    g_col[(3 + c) * TILE_PIXELS + idx] = g[pix * 3 + c];
+                    g_msk[c][idx] = g[pix * 3 + c];
                     bg_term += background[c] * g[pix * 3 + c];
                 }
             }
             if has_obj {
                 let g = grads.objects.expect("checked");
-                for c in 0..k_obj {
-                    g_col[(6 + c) * TILE_PIXELS + idx] = g[pix * k_obj + c];
+                for (c, pl) in g_obj.iter_mut().enumerate() {
+                    pl[idx] = g[pix * k_obj + c];
                 }
             }
-            let scalar = |m: Option<&[R]>| m.map_or(R::ZERO, |g| g[pix]);
-            g_sc[idx] = scalar(grads.alpha);
-            g_sc[TILE_PIXELS + idx] = scalar(grads.depth);
-            g_sc[2 * TILE_PIXELS + idx] = scalar(grads.median);
             if let Some(g) = grads.normal {
                 for c in 0..3 {
-                    g_sc[(3 + c) * TILE_PIXELS + idx] = g[pix * 3 + c];
+                    g_nrm[c][idx] = g[pix * 3 + c];
                 }
             }
-            g_sc[6 * TILE_PIXELS + idx] = scalar(grads.distortion);
-            g_sc[7 * TILE_PIXELS + idx] = bg_term * buf[lay.t_final * TILE_PIXELS + idx];
+            let scalar = |m: Option<&[R]>| m.map_or(z, |g| g[pix]);
+            g_a[idx] = scalar(grads.alpha);
+            g_d[idx] = scalar(grads.depth);
+            g_med[idx] = scalar(grads.median);
+            g_dist[idx] = scalar(grads.distortion);
+            g_bg[idx] = bg_term * t_final[idx];
         }
     }
-    let has_dist = grads.distortion.is_some();
+    let (m1f, m2f) = (plane(lay.m1), plane(lay.m2));
 
-    // Per-pixel running state: T and suffix sums (colours, mask, objects, z, 1, normal, w).
-    let mut tr: Vec<R> = buf[lay.t_final * TILE_PIXELS..(lay.t_final + 1) * TILE_PIXELS].to_vec();
-    let mut s_col = vec![R::ZERO; nq * TILE_PIXELS];
-    let mut s_sc = vec![R::ZERO; 6 * TILE_PIXELS]; // z, one, nx, ny, nz, w
+    // Running state: transmittance and suffix sums.
+    let mut tr: Plane<R> = std::array::from_fn(|i| t_final[i]);
+    let mut s_rgb: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut s_msk: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut s_nrm: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
+    let mut s_obj: Vec<Plane<R>> = if has_obj { vec![[z; TILE_PIXELS]; k_obj] } else { Vec::new() };
+    let (mut s_z, mut s_one, mut s_w) = ([z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS]);
+
+    // Pixels join the walk at their last blended surfel: sort them by `last`, descending.
+    let mut order: Vec<u16> = (0..TILE_PIXELS as u16).filter(|&i| last[i as usize] > 0).collect();
+    order.sort_unstable_by_key(|&i| std::cmp::Reverse(last[i as usize]));
+    let mut next = 0usize;
+    let mut active = [0u16; TILE as usize];
+
     let list = bins.tile(t);
     let two = R::from_f64(2.0);
     let filt2 = R::from_f64(2.0 * FILTER_INV_SQUARE);
+    let mut acc = [z; rec::OBJ];
+    let mut acc_obj = [z; crate::MAX_OBJECTS];
 
     for pos in (0..max_last).rev() {
+        while next < order.len() && last[order[next] as usize] as usize > pos {
+            let i = order[next] as usize;
+            active[i / TILE as usize] |= 1 << (i % TILE as usize);
+            next += 1;
+        }
         let j = list[pos] as usize;
         let p = &projs[j];
         let pr = &probs[j * k_obj..(j + 1) * k_obj];
-        let (x0, y0) = (p.bbox[0].max(tx0), p.bbox[1].max(ty0));
-        let (x1, y1) = (p.bbox[2].min(tx1), p.bbox[3].min(ty1));
-        let rec_out = &mut pairs[pos * stride..(pos + 1) * stride];
+        let (x0, y0) = (p.bbox[0].max(tx0) - tx0, p.bbox[1].max(ty0) - ty0);
+        let (x1, y1) = (p.bbox[2].min(tx1) - tx0, p.bbox[3].min(ty1) - ty0);
+        let span = span_mask(x0, x1);
         let mut touched = false;
-        for y in y0..=y1 {
-            let yr = R::from_f64(y as f64);
-            let row = ((y - ty0) * TILE as i32) as usize;
-            for x in x0..=x1 {
-                let idx = row + (x - tx0) as usize;
-                if pos as u32 >= last[idx] {
-                    continue;
-                }
-                let xr = R::from_f64(x as f64);
+        for ly in y0..=y1 {
+            let mut bits = active[ly as usize] & span;
+            if bits == 0 {
+                continue;
+            }
+            let yr = R::from_f64((ty0 + ly) as f64);
+            while bits != 0 {
+                let lx = bits.trailing_zeros() as i32;
+                bits &= bits - 1;
+                let idx = ((ly * TILE as i32 + lx) as usize) & (TILE_PIXELS - 1);
+                let xr = R::from_f64((tx0 + lx) as f64);
                 let Some(h) = intersect(p, xr, yr, cam.near) else { continue };
-                touched = true;
+                if !touched {
+                    acc = [z; rec::OBJ];
+                    acc_obj[..k_obj].fill(z);
+                    touched = true;
+                }
                 let a = h.alpha;
                 let one_m = R::ONE - a;
                 let t_i = tr[idx] / one_m;
                 let w = a * t_i;
-                let px = |c: usize| c * TILE_PIXELS + idx;
 
-                // Blended colour-like quantities.
-                let mut bracket = R::ZERO;
+                // Blended colour-like quantities: ∂/∂q_i and their share of ∂/∂α_i.
+                let mut bracket = z;
                 for c in 0..3 {
-                    let g = g_col[px(c)];
-                    rec_out[rec::RGB + c] += w * g;
-                    bracket += (p.rgb[c] - s_col[px(c)]) * g;
-                    s_col[px(c)] = a * p.rgb[c] + one_m * s_col[px(c)];
+                    let g = g_rgb[c][idx];
+                    acc[rec::RGB + c] += w * g;
+                    bracket += (p.rgb[c] - s_rgb[c][idx]) * g;
+                    s_rgb[c][idx] = a * p.rgb[c] + one_m * s_rgb[c][idx];
+                    let g = g_nrm[c][idx];
+                    acc[rec::NORMAL + c] += w * g;
+                    bracket += (p.normal[c] - s_nrm[c][idx]) * g;
+                    s_nrm[c][idx] = a * p.normal[c] + one_m * s_nrm[c][idx];
                 }
                 if has_mask {
                     for c in 0..3 {
-                        let g = g_col[px(3 + c)];
-                        rec_out[rec::MASK + c] += w * g;
-                        bracket += (p.mask[c] - s_col[px(3 + c)]) * g;
-                        s_col[px(3 + c)] = a * p.mask[c] + one_m * s_col[px(3 + c)];
+                        let g = g_msk[c][idx];
+                        acc[rec::MASK + c] += w * g;
+                        bracket += (p.mask[c] - s_msk[c][idx]) * g;
+                        s_msk[c][idx] = a * p.mask[c] + one_m * s_msk[c][idx];
                     }
                 }
                 if has_obj {
                     for (c, &pc) in pr.iter().enumerate() {
-                        let g = g_col[px(6 + c)];
-                        rec_out[rec::OBJ + c] += w * g;
-                        bracket += (pc - s_col[px(6 + c)]) * g;
-                        s_col[px(6 + c)] = a * pc + one_m * s_col[px(6 + c)];
+                        let g = g_obj[c][idx];
+                        acc_obj[c] += w * g;
+                        bracket += (pc - s_obj[c][idx]) * g;
+                        s_obj[c][idx] = a * pc + one_m * s_obj[c][idx];
                     }
                 }
-                // Depth, alpha, normal.
-                let g_d = g_sc[px(1)];
-                bracket += (h.z - s_sc[px(0)]) * g_d;
-                s_sc[px(0)] = a * h.z + one_m * s_sc[px(0)];
-                let mut dz = w * g_d;
-                bracket += (R::ONE - s_sc[px(1)]) * g_sc[px(0)];
-                s_sc[px(1)] = a + one_m * s_sc[px(1)];
-                for c in 0..3 {
-                    let g = g_sc[px(3 + c)];
-                    rec_out[rec::NORMAL + c] += w * g;
-                    bracket += (p.normal[c] - s_sc[px(2 + c)]) * g;
-                    s_sc[px(2 + c)] = a * p.normal[c] + one_m * s_sc[px(2 + c)];
-                }
-                // Median depth.
+                // Depth and alpha.
+                bracket += (h.z - s_z[idx]) * g_d[idx] + (R::ONE - s_one[idx]) * g_a[idx];
+                s_z[idx] = a * h.z + one_m * s_z[idx];
+                s_one[idx] = a + one_m * s_one[idx];
+                let mut dz = w * g_d[idx];
                 if pos as u32 == medpos[idx] {
-                    dz += g_sc[px(2)];
+                    dz += g_med[idx];
                 }
-                // Distortion.
                 if has_dist {
-                    let g_dist = g_sc[px(6)];
                     let (m, dm) = ndc_depth(h.z);
-                    let a_f = R::ONE - buf[lay.t_final * TILE_PIXELS + idx];
-                    let m1 = buf[lay.m1 * TILE_PIXELS + idx];
-                    let m2 = buf[lay.m2 * TILE_PIXELS + idx];
-                    let g_w = (m2 + m * m * a_f - two * m * m1) * g_dist;
-                    bracket += g_w - s_sc[px(5)];
-                    s_sc[px(5)] = a * g_w + one_m * s_sc[px(5)];
-                    dz += two * w * (m * a_f - m1) * g_dist * dm;
+                    let a_f = R::ONE - t_final[idx];
+                    let g_w = (m2f[idx] + m * m * a_f - two * m * m1f[idx]) * g_dist[idx];
+                    bracket += g_w - s_w[idx];
+                    s_w[idx] = a * g_w + one_m * s_w[idx];
+                    dz += two * w * (m * a_f - m1f[idx]) * g_dist[idx] * dm;
                 }
-                let d_alpha = t_i * bracket - g_sc[px(7)] / one_m;
+                let d_alpha = t_i * bracket - g_bg[idx] / one_m;
                 tr[idx] = t_i;
 
                 // α = min(0.99, o·G), G = exp(−ρ/2).
                 let d_g = if h.clamped {
-                    R::ZERO
+                    z
                 } else {
-                    rec_out[rec::OPACITY] += h.g * d_alpha;
+                    acc[rec::OPACITY] += h.g * d_alpha;
                     p.opacity * d_alpha
                 };
                 let d_rho = R::from_f64(-0.5) * h.g * d_g;
                 let (gu, gv) = if h.object_space {
                     (two * h.u * d_rho + dz * p.t_w[0], two * h.v * d_rho + dz * p.t_w[1])
                 } else {
-                    rec_out[rec::CENTER] += filt2 * (p.center[0] - xr) * d_rho;
-                    rec_out[rec::CENTER + 1] += filt2 * (p.center[1] - yr) * d_rho;
+                    acc[rec::CENTER] += filt2 * (p.center[0] - xr) * d_rho;
+                    acc[rec::CENTER + 1] += filt2 * (p.center[1] - yr) * d_rho;
                     (dz * p.t_w[0], dz * p.t_w[1])
                 };
                 let inv = R::ONE / h.pz;
@@ -239,13 +261,17 @@ pub fn backward_tile<R: Real>(
                 let gl = cross(gp, h.k);
                 let uv1 = [h.u, h.v, R::ONE];
                 for c in 0..3 {
-                    rec_out[rec::T + c] -= gk[c];
-                    rec_out[rec::T + 3 + c] -= gl[c];
-                    rec_out[rec::T + 6 + c] += xr * gk[c] + yr * gl[c] + dz * uv1[c];
+                    acc[rec::T + c] -= gk[c];
+                    acc[rec::T + 3 + c] -= gl[c];
+                    acc[rec::T + 6 + c] += xr * gk[c] + yr * gl[c] + dz * uv1[c];
                 }
             }
         }
-        let _ = touched;
+        if touched {
+            let out = &mut pairs[pos * stride..(pos + 1) * stride];
+            out[..rec::OBJ].copy_from_slice(&acc);
+            out[rec::OBJ..].copy_from_slice(&acc_obj[..k_obj]);
+        }
     }
 }
 

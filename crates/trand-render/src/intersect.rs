@@ -49,7 +49,7 @@ pub fn intersect<R: Real>(p: &Proj<R>, x: R, y: R, near: R) -> Option<Hit<R>> {
     let rho2 = R::from_f64(FILTER_INV_SQUARE) * (dx * dx + dy * dy);
     let object_space = rho3 <= rho2;
     let rho = if object_space { rho3 } else { rho2 };
-    let g = (R::from_f64(-0.5) * rho).exp();
+    let g = (R::from_f64(-0.5) * rho).fast_exp();
     let a = p.opacity * g;
     let max_a = R::from_f64(MAX_ALPHA);
     let clamped = a > max_a;

@@ -25,6 +25,7 @@ pub mod layout;
 pub mod params;
 pub mod preprocess;
 mod render;
+pub mod bench_scene;
 
 pub use params::{ParamsOf, SurfelParams};
 pub use render::{render, Gradients, Maps, OutputGrads, RenderError, RenderSettings, Rendered, MAX_OBJECTS};

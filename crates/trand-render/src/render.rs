@@ -10,7 +10,7 @@ use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
 use crate::forward::raster_tile;
 use crate::layout::{Layout, INT_CHANNELS};
 use crate::params::{ParamsOf, SurfelParams};
-use crate::preprocess::{preprocess_backward_one, preprocess_one, Proj};
+use crate::preprocess::{preprocess_backward_one, preprocess_one, Proj, SurfelGradSlot};
 
 /// The largest number of object channels the kernels support (fixed-size stack buffers).
 pub const MAX_OBJECTS: usize = 64;
@@ -93,8 +93,10 @@ pub struct Rendered<R> {
     pub distortion: Vec<R>,
     /// Per surfel: binning radius in pixels, 0 when culled (densification statistics).
     pub radii: Vec<f32>,
-    /// Number of (tile, surfel) pairs: the work measure.
+    /// Number of (tile, surfel) pairs.
     pub num_pairs: usize,
+    /// Number of (pixel, surfel) pairs inside the surfels' evaluation boxes: the work measure.
+    pub pixel_pairs: usize,
     saved: Saved<R>,
 }
 
@@ -218,42 +220,53 @@ impl<R: Real> Rendered<R> {
         });
 
         // Stages 5 and 6: reduce per surfel, then the preprocess VJP, in parallel over visible surfels.
+        // One flat record per visible surfel: mean 3, log-scale 2, quat 4, opacity 1, densify 2, SH, mask
+        // SH, object logits.
         let n = params.len();
         let sh_deg = s.sh_degree;
-        let per_vis: Vec<(ParamsOf<R>, [R; 2])> = s
-            .projs
-            .par_iter()
-            .enumerate()
-            .with_min_len(64)
-            .map(|(j, proj)| {
-                let mut dprobs = [R::ZERO; MAX_OBJECTS];
-                let dprobs = &mut dprobs[..k];
-                let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
-                let mut one = ParamsOf::<R>::zeros(1, params.sh_degree(), k);
-                let probs = &s.probs[j * k..(j + 1) * k];
-                preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut one.slot(0));
-                let z = proj.t_w[2];
-                let half = R::from_f64(0.5);
-                let dens = [
-                    g.t[2] * z * R::from_f64(s.cam.width as f64) * half,
-                    g.t[5] * z * R::from_f64(s.cam.height as f64) * half,
-                ];
-                (one, dens)
-            })
-            .collect();
+        let nc3 = trand_core::sh::num_coeffs(params.sh_degree()) * 3;
+        let rs = 12 + 2 * nc3 + k;
+        let mut recs = vec![R::ZERO; s.projs.len() * rs];
+        recs.par_chunks_mut(rs).zip(s.projs.par_iter()).enumerate().with_min_len(64).for_each(|(j, (r, proj))| {
+            let mut dprobs = [R::ZERO; MAX_OBJECTS];
+            let dprobs = &mut dprobs[..k];
+            let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
+            let probs = &s.probs[j * k..(j + 1) * k];
+            let (geo, rest) = r.split_at_mut(12);
+            let (sh, rest) = rest.split_at_mut(nc3);
+            let (mask_sh, obj_logits) = rest.split_at_mut(nc3);
+            let (mean, geo) = geo.split_at_mut(3);
+            let (log_scale, geo) = geo.split_at_mut(2);
+            let (quat, geo) = geo.split_at_mut(4);
+            let (opacity, dens) = geo.split_at_mut(1);
+            let mut slot = SurfelGradSlot {
+                mean: mean.try_into().expect("3"),
+                log_scale: log_scale.try_into().expect("2"),
+                quat: quat.try_into().expect("4"),
+                opacity_logit: &mut opacity[0],
+                sh,
+                mask_sh,
+                obj_logits,
+            };
+            preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut slot);
+            let z = proj.t_w[2];
+            let half = R::from_f64(0.5);
+            dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
+            dens[1] = g.t[5] * z * R::from_f64(s.cam.height as f64) * half;
+        });
         let mut out = ParamsOf::<R>::zeros(n, params.sh_degree(), k);
         let mut densify = vec![[R::ZERO; 2]; n];
-        for (proj, (one, dens)) in s.projs.iter().zip(per_vis) {
+        for (proj, r) in s.projs.iter().zip(recs.chunks_exact(rs)) {
             let i = proj.index as usize;
-            let mut slot = out.slot(i);
-            *slot.mean = one.means[0];
-            *slot.log_scale = one.log_scales[0];
-            *slot.quat = one.quats[0];
-            *slot.opacity_logit = one.opacity_logits[0];
-            slot.sh.copy_from_slice(&one.sh);
-            slot.mask_sh.copy_from_slice(&one.mask_sh);
-            slot.obj_logits.copy_from_slice(&one.obj_logits);
-            densify[i] = dens;
+            let slot = out.slot(i);
+            slot.mean.copy_from_slice(&r[0..3]);
+            slot.log_scale.copy_from_slice(&r[3..5]);
+            slot.quat.copy_from_slice(&r[5..9]);
+            *slot.opacity_logit = r[9];
+            slot.sh.copy_from_slice(&r[12..12 + nc3]);
+            slot.mask_sh.copy_from_slice(&r[12 + nc3..12 + 2 * nc3]);
+            slot.obj_logits.copy_from_slice(&r[12 + 2 * nc3..]);
+            densify[i] = [r[10], r[11]];
         }
         Gradients { params: out, densify }
     }
@@ -358,6 +371,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
     let normal = gather(lay.normal, 3);
     let distortion = gather(lay.dist, 1);
     let num_pairs = bins.num_pairs();
+    let pixel_pairs = projs.iter().map(|p| ((p.bbox[2] - p.bbox[0] + 1) * (p.bbox[3] - p.bbox[1] + 1)) as usize).sum();
     Ok(Rendered {
         width: cam.width,
         height: cam.height,
@@ -372,6 +386,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         distortion,
         radii,
         num_pairs,
+        pixel_pairs,
         saved: Saved { cam, settings: *settings, sh_degree, lay, projs, probs, bins, blocks, iblocks },
     })
 }
