@@ -59,7 +59,10 @@ pub fn fast_exp_f32(x: f32) -> f32 {
         return 0.0;
     }
     let x = x.min(88.0);
-    let n = (x * std::f32::consts::LOG2_E + 0.5).floor();
+    // floor(y + ½) without a libm call (no SSE4.1 rounding instruction on baseline x86-64).
+    let y = x * std::f32::consts::LOG2_E + 0.5;
+    let t = y as i32;
+    let n = (t - i32::from((t as f32) > y)) as f32;
     // ln2 split in a high part exact in f32 and a low correction.
     let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
     let p = 1.0

@@ -1,12 +1,15 @@
 //! Stage 4 and 5: per-tile backward rasterization and the per-surfel gradient reduction.
 //!
 //! Each tile walks its list back to front from the last surfel any of its pixels blended. Per pixel it
-//! keeps the transmittance, recovered as `T_i = T_{i+1}/(1 − α_i)` from the saved `T_final`, and suffix
-//! sums `S_q = Σ_{k>i} q_k α_k Π_{i<j<k}(1 − α_j)` for every blended quantity `q`, updated after use as
-//! `S_q ← α_i q_i + (1 − α_i) S_q`. Then (2DGS backward, with `g_·` the upstream pixel gradients):
+//! keeps the transmittance, recovered as `T_i = T_{i+1}/(1 − α_i)` from the saved `T_final`, and the
+//! suffix sum `S = Σ_{k>i} v_k α_k Π_{i<j<k}(1 − α_j)` of `v_k = Σ_q q_k·g_q + z_k g_D + g_A + g_{w,k}`,
+//! updated after use as `S ← α_i v_i + (1 − α_i) S`. Because a pixel's upstream gradients `g_q` are the
+//! same for every surfel along its ray, this one scalar replaces the per-channel suffix sums `S_q` of
+//! the CUDA reference (`Σ_q (q_i − S_q)·g_q = v_i − S`): the backward state is two numbers per pixel
+//! whatever the number of object channels. Then (2DGS backward, `g_·` the upstream pixel gradients):
 //!
 //! * `∂L/∂q_i = α_i T_i g_q` for colours, mask colours, object probabilities and normals;
-//! * `∂L/∂α_i = T_i [Σ_q (q_i − S_q)·g_q + (1 − S_1) g_A + (g_{w,i} − S_w)] − T_final (bg·g_C + bg·g_M)/(1 − α_i)`,
+//! * `∂L/∂α_i = T_i (v_i − S) − T_final (bg·g_C + bg·g_M)/(1 − α_i)`,
 //!   with the distortion weight gradient `g_{w,i} = (M₂ + m_i² A − 2 m_i M₁) g_dist`;
 //! * `∂L/∂z_i = α_i T_i g_D + [i = median] g_med + 2 α_i T_i (m_i A − M₁) g_dist · ∂m/∂z`;
 //! * `α = o·G` → `∂L/∂o = G ∂L/∂α`, `∂L/∂G = o ∂L/∂α` (zero when `o·G` hit the 0.99 clamp: the exact
@@ -138,13 +141,9 @@ pub fn backward_tile<R: Real>(
     }
     let (m1f, m2f) = (plane(lay.m1), plane(lay.m2));
 
-    // Running state: transmittance and suffix sums.
+    // Running state: transmittance and the combined suffix sum.
     let mut tr: Plane<R> = std::array::from_fn(|i| t_final[i]);
-    let mut s_rgb: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut s_msk: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut s_nrm: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut s_obj: Vec<Plane<R>> = if has_obj { vec![[z; TILE_PIXELS]; k_obj] } else { Vec::new() };
-    let (mut s_z, mut s_one, mut s_w) = ([z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS]);
+    let mut suffix: Plane<R> = [z; TILE_PIXELS];
 
     // Pixels join the walk at their last blended surfel: sort them by `last`, descending.
     let mut order: Vec<u16> = (0..TILE_PIXELS as u16).filter(|&i| last[i as usize] > 0).collect();
@@ -193,38 +192,30 @@ pub fn backward_tile<R: Real>(
                 let t_i = tr[idx] / one_m;
                 let w = a * t_i;
 
-                // Blended colour-like quantities: ∂/∂q_i and their share of ∂/∂α_i.
-                let mut bracket = z;
+                // v_i = Σ_q q_i·g_q + z_i g_D + g_A (+ g_w): blended quantities and their ∂/∂q_i.
+                let mut v = h.z * g_d[idx] + g_a[idx];
                 for c in 0..3 {
                     let g = g_rgb[c][idx];
                     acc[rec::RGB + c] += w * g;
-                    bracket += (p.rgb[c] - s_rgb[c][idx]) * g;
-                    s_rgb[c][idx] = a * p.rgb[c] + one_m * s_rgb[c][idx];
+                    v += p.rgb[c] * g;
                     let g = g_nrm[c][idx];
                     acc[rec::NORMAL + c] += w * g;
-                    bracket += (p.normal[c] - s_nrm[c][idx]) * g;
-                    s_nrm[c][idx] = a * p.normal[c] + one_m * s_nrm[c][idx];
+                    v += p.normal[c] * g;
                 }
                 if has_mask {
                     for c in 0..3 {
                         let g = g_msk[c][idx];
                         acc[rec::MASK + c] += w * g;
-                        bracket += (p.mask[c] - s_msk[c][idx]) * g;
-                        s_msk[c][idx] = a * p.mask[c] + one_m * s_msk[c][idx];
+                        v += p.mask[c] * g;
                     }
                 }
                 if has_obj {
-                    for (c, &pc) in pr.iter().enumerate() {
-                        let g = g_obj[c][idx];
-                        acc_obj[c] += w * g;
-                        bracket += (pc - s_obj[c][idx]) * g;
-                        s_obj[c][idx] = a * pc + one_m * s_obj[c][idx];
+                    for ((ao, &pc), gp) in acc_obj.iter_mut().zip(pr).zip(&g_obj) {
+                        let g = gp[idx];
+                        *ao += w * g;
+                        v += pc * g;
                     }
                 }
-                // Depth and alpha.
-                bracket += (h.z - s_z[idx]) * g_d[idx] + (R::ONE - s_one[idx]) * g_a[idx];
-                s_z[idx] = a * h.z + one_m * s_z[idx];
-                s_one[idx] = a + one_m * s_one[idx];
                 let mut dz = w * g_d[idx];
                 if pos as u32 == medpos[idx] {
                     dz += g_med[idx];
@@ -233,10 +224,11 @@ pub fn backward_tile<R: Real>(
                     let (m, dm) = ndc_depth(h.z);
                     let a_f = R::ONE - t_final[idx];
                     let g_w = (m2f[idx] + m * m * a_f - two * m * m1f[idx]) * g_dist[idx];
-                    bracket += g_w - s_w[idx];
-                    s_w[idx] = a * g_w + one_m * s_w[idx];
+                    v += g_w;
                     dz += two * w * (m * a_f - m1f[idx]) * g_dist[idx] * dm;
                 }
+                let bracket = v - suffix[idx];
+                suffix[idx] = a * v + one_m * suffix[idx];
                 let d_alpha = t_i * bracket - g_bg[idx] / one_m;
                 tr[idx] = t_i;
 

@@ -352,11 +352,15 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         let mut out = vec![R::ZERO; w * h * nch];
         out.par_chunks_mut(w * nch).enumerate().for_each(|(y, row)| {
             let (ty, ly) = (y / TILE as usize, y % TILE as usize);
-            for x in 0..w {
-                let t = ty * tiles_x + x / TILE as usize;
-                let idx = ly * TILE as usize + x % TILE as usize;
+            for tx in 0..tiles_x {
+                let x0 = tx * TILE as usize;
+                let nx = (w - x0).min(TILE as usize);
+                let b = &blocks[(ty * tiles_x + tx) * block..];
                 for c in 0..nch {
-                    row[x * nch + c] = blocks[t * block + (ch0 + c) * TILE_PIXELS + idx];
+                    let src = &b[(ch0 + c) * TILE_PIXELS + ly * TILE as usize..][..nx];
+                    for (dst, &v) in row[x0 * nch + c..].iter_mut().step_by(nch).zip(src) {
+                        *dst = v;
+                    }
                 }
             }
         });
