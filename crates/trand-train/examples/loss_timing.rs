@@ -9,7 +9,9 @@ use trand_train::losses::{dice, photometric};
 /// Process CPU time (user + system) in seconds, from `/proc/self/stat` (Linux; 0 elsewhere). On a shared
 /// machine it is a steadier measure than wall time.
 fn cpu_seconds() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return 0.0 };
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
     let after = s.rsplit(')').next().unwrap_or("");
     let f: Vec<&str> = after.split_whitespace().collect();
     let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
@@ -35,7 +37,9 @@ fn main() {
     println!("rayon threads: {}", rayon::current_num_threads());
     time("l1 640x480x3 (fwd+bwd)", 50, || photometric::l1(&x, &y));
     time("ssim 640x480x3 (fwd+bwd)", 50, || photometric::ssim(&x, &y, w, h, 3));
-    time("photometric 640x480x3 (fwd+bwd)", 50, || photometric::photometric(&x, &y, w, h, 3, 0.2));
+    time("photometric 640x480x3 (fwd+bwd)", 50, || {
+        photometric::photometric(&x, &y, w, h, 3, 0.2)
+    });
     let k = 15;
     let p: Vec<f32> = (0..w * h * k).map(|_| rng.random::<f32>()).collect();
     let t: Vec<f32> = (0..w * h * k).map(|i| if i % k == 0 { 1.0 } else { 0.0 }).collect();

@@ -18,7 +18,11 @@ use trand_core::Real;
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DiceError {
     #[error("instance id {id} maps to channel {channel}, but the object map has only {num_channels} channels")]
-    ChannelOutOfRange { id: u16, channel: usize, num_channels: usize },
+    ChannelOutOfRange {
+        id: u16,
+        channel: usize,
+        num_channels: usize,
+    },
     #[error("instance id {id} at pixel {pixel} is not in the id → channel table")]
     UnknownId { id: u16, pixel: usize },
     #[error("object map needs at least one channel")]
@@ -33,7 +37,11 @@ const CHUNK_PIXELS: usize = 2048;
 pub fn dice<R: Real>(pred: &[R], target: &[R], num_channels: usize) -> (R, Vec<R>) {
     assert!(num_channels > 0, "dice: no channels");
     assert_eq!(pred.len(), target.len(), "dice: map sizes differ");
-    assert_eq!(pred.len() % num_channels, 0, "dice: length is not a multiple of the channel count");
+    assert_eq!(
+        pred.len() % num_channels,
+        0,
+        "dice: length is not a multiple of the channel count"
+    );
     let k = num_channels;
     // Per chunk: [Σ p t, Σ p, Σ t] for every channel, then reduced in chunk order.
     let partial: Vec<Vec<R>> = pred
@@ -87,11 +95,7 @@ pub fn dice<R: Real>(pred: &[R], target: &[R], num_channels: usize) -> (R, Vec<R
 /// `id_to_channel` lists `(instance id, channel)` pairs. Id 0 is the background and maps to channel 0
 /// unless the table says otherwise; any other id missing from the table is an error (a silently dropped
 /// object would train towards "background").
-pub fn one_hot_target(
-    ids: &[u16],
-    id_to_channel: &[(u16, usize)],
-    num_channels: usize,
-) -> Result<Vec<f32>, DiceError> {
+pub fn one_hot_target(ids: &[u16], id_to_channel: &[(u16, usize)], num_channels: usize) -> Result<Vec<f32>, DiceError> {
     if num_channels == 0 {
         return Err(DiceError::NoChannels);
     }
@@ -99,7 +103,11 @@ pub fn one_hot_target(
     lut[0] = Some(0);
     for &(id, channel) in id_to_channel {
         if channel >= num_channels {
-            return Err(DiceError::ChannelOutOfRange { id, channel, num_channels });
+            return Err(DiceError::ChannelOutOfRange {
+                id,
+                channel,
+                num_channels,
+            });
         }
         lut[id as usize] = Some(channel);
     }
@@ -152,10 +160,17 @@ mod tests {
 
     #[test]
     fn one_hot_rejects_unknown_ids_and_bad_channels() {
-        assert_eq!(one_hot_target(&[0, 5], &[(3, 1)], 4), Err(DiceError::UnknownId { id: 5, pixel: 1 }));
+        assert_eq!(
+            one_hot_target(&[0, 5], &[(3, 1)], 4),
+            Err(DiceError::UnknownId { id: 5, pixel: 1 })
+        );
         assert_eq!(
             one_hot_target(&[0], &[(3, 4)], 4),
-            Err(DiceError::ChannelOutOfRange { id: 3, channel: 4, num_channels: 4 })
+            Err(DiceError::ChannelOutOfRange {
+                id: 3,
+                channel: 4,
+                num_channels: 4
+            })
         );
         let t = one_hot_target(&[2, 0], &[(2, 3)], 4).unwrap();
         assert_eq!(t, vec![0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0]);

@@ -33,7 +33,12 @@ pub struct Pinhole<R> {
 
 impl<R: Real> Pinhole<R> {
     pub fn from_intrinsics(k: &Intrinsics) -> Self {
-        Self { fx: R::from_f64(k.fx), fy: R::from_f64(k.fy), cx: R::from_f64(k.cx), cy: R::from_f64(k.cy) }
+        Self {
+            fx: R::from_f64(k.fx),
+            fy: R::from_f64(k.fy),
+            cx: R::from_f64(k.cx),
+            cy: R::from_f64(k.cy),
+        }
     }
 
     /// Camera-frame ray with z = 1 through the pixel centre `(col, row)`.
@@ -54,7 +59,11 @@ fn sub<R: Real>(a: [R; 3], b: [R; 3]) -> [R; 3] {
 
 #[inline]
 fn cross<R: Real>(a: [R; 3], b: [R; 3]) -> [R; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 #[inline]
@@ -129,7 +138,11 @@ pub fn normal_consistency<R: Real>(
     assert_eq!(depth.len(), n_pix, "depth map size");
     assert_eq!(alpha.len(), n_pix, "alpha map size");
     if n_pix == 0 {
-        return NormalConsistency { value: R::ZERO, grad_normal: Vec::new(), grad_depth: Vec::new() };
+        return NormalConsistency {
+            value: R::ZERO,
+            grad_normal: Vec::new(),
+            grad_depth: Vec::new(),
+        };
     }
     let inv_n = R::ONE / R::from_f64(n_pix as f64);
     let eps = R::from_f64(NORMALIZE_EPS);
@@ -146,7 +159,12 @@ pub fn normal_consistency<R: Real>(
         .map(|p| {
             let zero = [R::ZERO; 3];
             if !is_interior(p, width, height) {
-                return Px { term: R::ONE, g_rend: zero, g_a: zero, g_b: zero };
+                return Px {
+                    term: R::ONE,
+                    g_rend: zero,
+                    g_a: zero,
+                    g_b: zero,
+                };
             }
             let (a, b) = diffs(&pts, p, width);
             let c = cross(a, b);
@@ -160,11 +178,20 @@ pub fn normal_consistency<R: Real>(
             let g_n = [-al * rn[0] * inv_n, -al * rn[1] * inv_n, -al * rn[2] * inv_n];
             let g_c = if len > eps {
                 let d = dot(g_n, n);
-                [(g_n[0] - d * n[0]) * inv, (g_n[1] - d * n[1]) * inv, (g_n[2] - d * n[2]) * inv]
+                [
+                    (g_n[0] - d * n[0]) * inv,
+                    (g_n[1] - d * n[1]) * inv,
+                    (g_n[2] - d * n[2]) * inv,
+                ]
             } else {
                 [g_n[0] * inv, g_n[1] * inv, g_n[2] * inv]
             };
-            Px { term, g_rend, g_a: cross(b, g_c), g_b: cross(g_c, a) }
+            Px {
+                term,
+                g_rend,
+                g_a: cross(b, g_c),
+                g_b: cross(g_c, a),
+            }
         })
         .collect();
     // Gather: P[p] enters a at p − W (+), at p + W (−), and b at p − 1 (+), at p + 1 (−).
@@ -193,8 +220,16 @@ pub fn normal_consistency<R: Real>(
             dot(g, k.ray(col, row))
         })
         .collect();
-    let value = px.chunks(4096).map(|c| c.iter().fold(R::ZERO, |s, q| s + q.term)).fold(R::ZERO, |s, v| s + v) * inv_n;
-    NormalConsistency { value, grad_normal: px.iter().map(|q| q.g_rend).collect(), grad_depth }
+    let value = px
+        .chunks(4096)
+        .map(|c| c.iter().fold(R::ZERO, |s, q| s + q.term))
+        .fold(R::ZERO, |s, v| s + v)
+        * inv_n;
+    NormalConsistency {
+        value,
+        grad_normal: px.iter().map(|q| q.g_rend).collect(),
+        grad_depth,
+    }
 }
 
 /// Mean of the rendered distortion map and the (uniform) per-pixel gradient `1/N`.
@@ -203,7 +238,10 @@ pub fn distortion<R: Real>(dist: &[R]) -> (R, R) {
         return (R::ZERO, R::ZERO);
     }
     let inv_n = R::ONE / R::from_f64(dist.len() as f64);
-    let sum = dist.chunks(4096).map(|c| c.iter().fold(R::ZERO, |s, &v| s + v)).fold(R::ZERO, |s, v| s + v);
+    let sum = dist
+        .chunks(4096)
+        .map(|c| c.iter().fold(R::ZERO, |s, &v| s + v))
+        .fold(R::ZERO, |s, v| s + v);
     (sum * inv_n, inv_n)
 }
 
@@ -213,7 +251,12 @@ mod tests {
     use crate::testutil::{assert_grad_matches_fd, rand_vec};
 
     fn cam() -> Pinhole<f64> {
-        Pinhole { fx: 50.0, fy: 45.0, cx: 4.5, cy: 3.0 }
+        Pinhole {
+            fx: 50.0,
+            fy: 45.0,
+            cx: 4.5,
+            cy: 3.0,
+        }
     }
 
     #[test]
@@ -221,11 +264,14 @@ mod tests {
         let (w, h) = (8, 7);
         let depth = vec![1.3f64; w * h];
         let n = depth_to_normal(&depth, &cam(), w, h);
-        for p in 0..w * h {
+        for (p, np) in n.iter().enumerate() {
             if is_interior(p, w, h) {
-                assert!((n[p][2] + 1.0).abs() < 1e-12 && n[p][0].abs() < 1e-12 && n[p][1].abs() < 1e-12, "{:?}", n[p]);
+                assert!(
+                    (np[2] + 1.0).abs() < 1e-12 && np[0].abs() < 1e-12 && np[1].abs() < 1e-12,
+                    "{np:?}"
+                );
             } else {
-                assert_eq!(n[p], [0.0; 3]);
+                assert_eq!(*np, [0.0; 3]);
             }
         }
     }
@@ -255,13 +301,28 @@ mod tests {
         let k = cam();
         let depth = rand_vec(40, w * h, 0.8, 1.2);
         let alpha = rand_vec(41, w * h, 0.2, 1.0);
-        let rn: Vec<[f64; 3]> = rand_vec(42, 3 * w * h, -1.0, 1.0).chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let rn: Vec<[f64; 3]> = rand_vec(42, 3 * w * h, -1.0, 1.0)
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
         let r = normal_consistency(&rn, &depth, &alpha, &k, w, h);
-        assert_grad_matches_fd(&depth, &r.grad_depth, |d| normal_consistency(&rn, d, &alpha, &k, w, h).value, 1e-6, 1e-8);
+        assert_grad_matches_fd(
+            &depth,
+            &r.grad_depth,
+            |d| normal_consistency(&rn, d, &alpha, &k, w, h).value,
+            1e-6,
+            1e-8,
+        );
         let flat: Vec<f64> = rn.iter().flatten().copied().collect();
         let gflat: Vec<f64> = r.grad_normal.iter().flatten().copied().collect();
         let as_normals = |f: &[f64]| f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
-        assert_grad_matches_fd(&flat, &gflat, |f| normal_consistency(&as_normals(f), &depth, &alpha, &k, w, h).value, 1e-6, 1e-9);
+        assert_grad_matches_fd(
+            &flat,
+            &gflat,
+            |f| normal_consistency(&as_normals(f), &depth, &alpha, &k, w, h).value,
+            1e-6,
+            1e-9,
+        );
     }
 
     #[test]

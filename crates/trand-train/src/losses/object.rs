@@ -39,9 +39,18 @@ pub struct ObjectLevel {
 
 /// TRAN-D's levels `(G, K)`: `object_loss_group_cnt = [16, 32, 64]`, `object_loss_group_size = [16, 16, 32]`.
 pub const TRAN_D_LEVELS: [ObjectLevel; 3] = [
-    ObjectLevel { centres: 16, neighbours: 16 },
-    ObjectLevel { centres: 32, neighbours: 16 },
-    ObjectLevel { centres: 64, neighbours: 32 },
+    ObjectLevel {
+        centres: 16,
+        neighbours: 16,
+    },
+    ObjectLevel {
+        centres: 32,
+        neighbours: 16,
+    },
+    ObjectLevel {
+        centres: 64,
+        neighbours: 32,
+    },
 ];
 
 /// Parameters of the object-aware loss.
@@ -59,7 +68,12 @@ pub struct ObjectLossParams {
 
 impl Default for ObjectLossParams {
     fn default() -> Self {
-        Self { levels: TRAN_D_LEVELS.to_vec(), spread_weight: 1.0 / 3.0, gap_weight: 10000.0 / 3.0, membership_threshold: 0.5 }
+        Self {
+            levels: TRAN_D_LEVELS.to_vec(),
+            spread_weight: 1.0 / 3.0,
+            gap_weight: 10000.0 / 3.0,
+            membership_threshold: 0.5,
+        }
     }
 }
 
@@ -102,7 +116,10 @@ fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
 /// Members of every channel (index = channel; channel 0, the background, included) by softmax
 /// probability `> threshold`, in storage order.
 pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: f64) -> Vec<Vec<usize>> {
-    assert!(threshold >= 0.5, "membership threshold {threshold} < 0.5 would make membership ambiguous");
+    assert!(
+        threshold >= 0.5,
+        "membership threshold {threshold} < 0.5 would make membership ambiguous"
+    );
     assert_eq!(obj_logits.len() % num_objects.max(1), 0, "object logits length");
     let thr = R::from_f64(threshold);
     let owner: Vec<Option<usize>> = obj_logits
@@ -166,8 +183,16 @@ pub fn k_nearest<R: Real>(points: &[[R; 3]], idx: &[usize], query: &[R; 3], k: u
     if k == 0 {
         return Vec::new();
     }
-    let mut d: Vec<(R, usize)> = idx.iter().enumerate().map(|(j, &i)| (dist2(&points[i], query), j)).collect();
-    let cmp = |a: &(R, usize), b: &(R, usize)| a.0.partial_cmp(&b.0).unwrap_or(std::cmp::Ordering::Equal).then(a.1.cmp(&b.1));
+    let mut d: Vec<(R, usize)> = idx
+        .iter()
+        .enumerate()
+        .map(|(j, &i)| (dist2(&points[i], query), j))
+        .collect();
+    let cmp = |a: &(R, usize), b: &(R, usize)| {
+        a.0.partial_cmp(&b.0)
+            .unwrap_or(std::cmp::Ordering::Equal)
+            .then(a.1.cmp(&b.1))
+    };
     if k < d.len() {
         d.select_nth_unstable_by(k - 1, cmp);
         d.truncate(k);
@@ -186,7 +211,11 @@ fn select_level<R: Real>(points: &[[R; 3]], members: &[usize], level: ObjectLeve
     let centres: Vec<usize> = centres_local.iter().map(|&j| members[j]).collect();
     let mut neighbours = Vec::with_capacity(g * level.neighbours);
     for &c in &centres {
-        neighbours.extend(k_nearest(points, members, &points[c], level.neighbours).into_iter().map(|j| members[j]));
+        neighbours.extend(
+            k_nearest(points, members, &points[c], level.neighbours)
+                .into_iter()
+                .map(|j| members[j]),
+        );
     }
     let nearest_centre = (0..g)
         .map(|a| {
@@ -205,7 +234,11 @@ fn select_level<R: Real>(points: &[[R; 3]], members: &[usize], level: ObjectLeve
             best
         })
         .collect();
-    Some(LevelSelection { centres, neighbours, nearest_centre })
+    Some(LevelSelection {
+        centres,
+        neighbours,
+        nearest_centre,
+    })
 }
 
 /// Makes the discrete choices (members, FPS centres, kNN lists, nearest centres) for the object channels
@@ -301,7 +334,11 @@ pub fn evaluate<R: Real>(points: &[[R; 3]], selection: &[ObjectSelection], param
             }
         }
     }
-    ObjectLoss { value, grad, objects_per_level }
+    ObjectLoss {
+        value,
+        grad,
+        objects_per_level,
+    }
 }
 
 /// [`select`] then [`evaluate`]: the object-aware loss at the current positions.
@@ -321,7 +358,10 @@ mod tests {
     use crate::testutil::rand_vec;
 
     fn cloud(seed: u64, n: usize) -> Vec<[f64; 3]> {
-        rand_vec(seed, 3 * n, -1.0, 1.0).chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+        rand_vec(seed, 3 * n, -1.0, 1.0)
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect()
     }
 
     /// FPS by definition: each next point maximises min distance to all chosen so far (recomputed).
@@ -332,7 +372,12 @@ mod tests {
         let got = farthest_point_sampling(&p, &idx, 20);
         let mut chosen = vec![0usize];
         while chosen.len() < 20 {
-            let score = |j: usize| chosen.iter().map(|&c| dist2(&p[idx[j]], &p[idx[c]])).fold(f64::INFINITY, f64::min);
+            let score = |j: usize| {
+                chosen
+                    .iter()
+                    .map(|&c| dist2(&p[idx[j]], &p[idx[c]]))
+                    .fold(f64::INFINITY, f64::min)
+            };
             let best = (0..idx.len()).fold(0, |b, j| if score(j) > score(b) { j } else { b });
             chosen.push(best);
         }
@@ -346,7 +391,12 @@ mod tests {
         for q in [0usize, 17, 299] {
             let got = k_nearest(&p, &idx, &p[q], 16);
             let mut all: Vec<usize> = (0..300).collect();
-            all.sort_by(|&a, &b| dist2(&p[a], &p[q]).partial_cmp(&dist2(&p[b], &p[q])).unwrap().then(a.cmp(&b)));
+            all.sort_by(|&a, &b| {
+                dist2(&p[a], &p[q])
+                    .partial_cmp(&dist2(&p[b], &p[q]))
+                    .unwrap()
+                    .then(a.cmp(&b))
+            });
             assert_eq!(got, all[..16].to_vec());
             assert_eq!(got[0], q);
         }
@@ -375,9 +425,18 @@ mod tests {
     fn small_params() -> ObjectLossParams {
         ObjectLossParams {
             levels: vec![
-                ObjectLevel { centres: 8, neighbours: 6 },
-                ObjectLevel { centres: 16, neighbours: 8 },
-                ObjectLevel { centres: 40, neighbours: 8 },
+                ObjectLevel {
+                    centres: 8,
+                    neighbours: 6,
+                },
+                ObjectLevel {
+                    centres: 16,
+                    neighbours: 8,
+                },
+                ObjectLevel {
+                    centres: 40,
+                    neighbours: 8,
+                },
             ],
             ..Default::default()
         }
@@ -428,7 +487,11 @@ mod tests {
                 let fd = (fp - fm) / (2.0 * h);
                 let err = (fd - loss.grad[i][ax]).abs();
                 max_err = max_err.max(err / (1.0 + fd.abs()));
-                assert!(err <= 1e-5 * (1.0 + fd.abs()), "surfel {i} axis {ax}: fd {fd} analytic {}", loss.grad[i][ax]);
+                assert!(
+                    err <= 1e-5 * (1.0 + fd.abs()),
+                    "surfel {i} axis {ax}: fd {fd} analytic {}",
+                    loss.grad[i][ax]
+                );
             }
         }
         assert!(max_err < 1e-5);
@@ -447,7 +510,10 @@ mod tests {
         }
         let logits: Vec<f64> = p.iter().flat_map(|_| [0.0, 9.0]).collect();
         let params = ObjectLossParams {
-            levels: vec![ObjectLevel { centres: 64, neighbours: 1 }],
+            levels: vec![ObjectLevel {
+                centres: 64,
+                neighbours: 1,
+            }],
             ..Default::default()
         };
         let loss = object_aware_loss(&p, &logits, 2, &params);
@@ -461,6 +527,11 @@ mod tests {
         let lf: Vec<f32> = logits.iter().map(|&v| v as f32).collect();
         let a = object_aware_loss(&p, &logits, k, &small_params());
         let b = object_aware_loss(&pf, &lf, k, &small_params());
-        assert!((a.value - b.value as f64).abs() < 1e-4 * a.value.abs().max(1.0), "{} vs {}", a.value, b.value);
+        assert!(
+            (a.value - b.value as f64).abs() < 1e-4 * a.value.abs().max(1.0),
+            "{} vs {}",
+            a.value,
+            b.value
+        );
     }
 }

@@ -57,8 +57,10 @@ pub fn l1<R: Real>(pred: &[R], gt: &[R]) -> (R, Vec<R>) {
     }
     let inv_n = R::ONE / R::from_f64(pred.len() as f64);
     let mut grad = vec![R::ZERO; pred.len()];
-    grad.par_chunks_mut(L1_CHUNK).zip(pred.par_chunks(L1_CHUNK)).zip(gt.par_chunks(L1_CHUNK)).for_each(
-        |((o, p), g)| {
+    grad.par_chunks_mut(L1_CHUNK)
+        .zip(pred.par_chunks(L1_CHUNK))
+        .zip(gt.par_chunks(L1_CHUNK))
+        .for_each(|((o, p), g)| {
             for ((o, &p), &g) in o.iter_mut().zip(p).zip(g) {
                 *o = if p > g {
                     inv_n
@@ -68,8 +70,7 @@ pub fn l1<R: Real>(pred: &[R], gt: &[R]) -> (R, Vec<R>) {
                     R::ZERO
                 };
             }
-        },
-    );
+        });
     // Row-sized chunks summed in order: deterministic regardless of the thread count.
     let partial: Vec<R> = pred
         .par_chunks(L1_CHUNK)
@@ -85,7 +86,11 @@ const L1_CHUNK: usize = 4096;
 
 /// Checks the image buffer length against its shape.
 fn check_shape(len: usize, width: usize, height: usize, channels: usize, what: &str) {
-    assert_eq!(len, width * height * channels, "{what}: buffer length {len} is not {width}×{height}×{channels}");
+    assert_eq!(
+        len,
+        width * height * channels,
+        "{what}: buffer length {len} is not {width}×{height}×{channels}"
+    );
 }
 
 /// Splits an interleaved image into channel planes (`[ch][row·W + col]`).
@@ -275,7 +280,12 @@ pub fn photometric<R: Real>(
     let (sv, gs) = ssim(pred, gt, width, height, channels);
     let wl1 = R::ONE - lambda_dssim;
     let grad = g1.iter().zip(&gs).map(|(&a, &b)| wl1 * a - lambda_dssim * b).collect();
-    Photometric { value: wl1 * l1v + lambda_dssim * (R::ONE - sv), l1: l1v, ssim: sv, grad }
+    Photometric {
+        value: wl1 * l1v + lambda_dssim * (R::ONE - sv),
+        l1: l1v,
+        ssim: sv,
+        grad,
+    }
 }
 
 #[cfg(test)]
