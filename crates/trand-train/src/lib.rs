@@ -2,8 +2,15 @@
 //!
 //! * [`losses`]: photometric (L1 + D-SSIM), Dice on the object map, TRAN-D's object-aware 3D loss and
 //!   2DGS's normal-consistency and distortion losses, each with an analytic gradient.
+//! * [`optim`]: Adam over [`trand_core::Surfels`] with per-group learning-rate schedules.
+//! * [`config`]: [`TrainConfig`], TRAN-D's hyper-parameters (t = 0 default, [`TrainConfig::t1`]), TOML.
 
+pub mod config;
 pub mod losses;
+pub mod optim;
+
+pub use config::TrainConfig;
+pub use optim::{Adam, AdamParams, GroupLr, LrSchedule};
 
 #[cfg(test)]
 mod testutil;
