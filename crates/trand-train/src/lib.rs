@@ -5,9 +5,11 @@
 //! * [`optim`]: Adam over [`trand_core::Surfels`] with per-group learning-rate schedules.
 //! * [`config`]: [`TrainConfig`], TRAN-D's hyper-parameters (t = 0 default, [`TrainConfig::t1`]), TOML.
 //! * [`densify`]: clone / split / prune and opacity reset, keeping Adam's moments aligned.
+//! * [`init`]: TRAN-D's random slab initialisation.
 
 pub mod config;
 pub mod densify;
+pub mod init;
 pub mod losses;
 pub mod optim;
 
