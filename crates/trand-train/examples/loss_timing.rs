@@ -1,0 +1,47 @@
+//! Wall-clock timing of the image losses at 640×480: `cargo run --release -p trand-train --example loss_timing`.
+
+use std::time::Instant;
+
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64;
+use trand_train::losses::{dice, photometric};
+
+/// Process CPU time (user + system) in seconds, from `/proc/self/stat` (Linux; 0 elsewhere). On a shared
+/// machine it is a steadier measure than wall time.
+fn cpu_seconds() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    let after = s.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0 // utime, stime in clock ticks (USER_HZ = 100)
+}
+
+fn time<T>(label: &str, reps: usize, mut f: impl FnMut() -> T) {
+    let _ = f(); // warm-up
+    let (t, c) = (Instant::now(), cpu_seconds());
+    for _ in 0..reps {
+        std::hint::black_box(f());
+    }
+    let wall = t.elapsed().as_secs_f64() * 1e3 / reps as f64;
+    let cpu = (cpu_seconds() - c) * 1e3 / reps as f64;
+    println!("{label}: wall {wall:.2} ms, cpu {cpu:.2} ms");
+}
+
+fn main() {
+    let (w, h) = (640usize, 480usize);
+    let mut rng = Pcg64::seed_from_u64(0);
+    let x: Vec<f32> = (0..w * h * 3).map(|_| rng.random::<f32>()).collect();
+    let y: Vec<f32> = (0..w * h * 3).map(|_| rng.random::<f32>()).collect();
+    println!("rayon threads: {}", rayon::current_num_threads());
+    time("l1 640x480x3 (fwd+bwd)", 50, || photometric::l1(&x, &y));
+    time("ssim 640x480x3 (fwd+bwd)", 50, || photometric::ssim(&x, &y, w, h, 3));
+    time("photometric 640x480x3 (fwd+bwd)", 50, || {
+        photometric::photometric(&x, &y, w, h, 3, 0.2)
+    });
+    let k = 15;
+    let p: Vec<f32> = (0..w * h * k).map(|_| rng.random::<f32>()).collect();
+    let t: Vec<f32> = (0..w * h * k).map(|i| if i % k == 0 { 1.0 } else { 0.0 }).collect();
+    time("dice 640x480x15 (fwd+bwd)", 50, || dice::dice(&p, &t, k));
+}

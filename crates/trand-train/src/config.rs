@@ -1,0 +1,507 @@
+//! Training configuration: TRAN-D's released-code values (reference notes §2.1, §10) as defaults,
+//! loadable from TOML (every field optional; missing fields take the default).
+//!
+//! * [`TrainConfig::default`] = the t = 0 optimisation (1000 iterations from a random init).
+//! * [`TrainConfig::t1`] = the t = 1 refinement (100 iterations after the scene update, one image).
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use trand_core::surfels::ParamGroup;
+
+use crate::losses::object::ObjectLossParams;
+use crate::optim::{AdamParams, GroupLr, LrSchedule, group_index};
+
+/// Why a configuration cannot be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("reading {path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("parsing TOML: {0}")]
+    Parse(#[from] toml::de::Error),
+    #[error("invalid configuration: {0}")]
+    Invalid(String),
+}
+
+/// When an iteration-gated term is active.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Activation {
+    Never,
+    /// Active for iterations strictly greater than this one (the reference's `iteration > start`).
+    After(u32),
+}
+
+impl Activation {
+    pub fn is_active(self, iteration: u32) -> bool {
+        match self {
+            Activation::Never => false,
+            Activation::After(s) => iteration > s,
+        }
+    }
+}
+
+/// A periodic event.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Periodic {
+    Never,
+    Every(u32),
+}
+
+impl Periodic {
+    pub fn fires(self, iteration: u32) -> bool {
+        match self {
+            Periodic::Never => false,
+            Periodic::Every(n) => n > 0 && iteration % n == 0,
+        }
+    }
+}
+
+/// How the position learning rate is scaled.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SpatialLrScale {
+    /// × the scene extent (1.1 × largest camera distance from the cameras' mean), as at t = 0.
+    CameraExtent,
+    /// × a fixed factor (t = 1 in the reference: 1, because the loaded model never sets it).
+    Fixed(f64),
+}
+
+/// Screen-size pruning (`max_radii2D > size_threshold`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScreenSizePruning {
+    /// As the reference code behaves: the radii statistics are zeroed by the clone/split step just before
+    /// the test, so it never prunes (only the world-size test acts).
+    AsReference,
+    /// Prune on the radii accumulated since the last densification (clones and split children inherit
+    /// their parent's maximum radius).
+    Active,
+}
+
+/// Learning-rate schedules per parameter group (position rates before the spatial scale).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LearningRates {
+    pub means: LrSchedule,
+    pub log_scales: LrSchedule,
+    pub quats: LrSchedule,
+    pub opacity: LrSchedule,
+    pub sh_dc: LrSchedule,
+    pub sh_rest: LrSchedule,
+    pub mask_dc: LrSchedule,
+    pub mask_rest: LrSchedule,
+    pub obj_logits: LrSchedule,
+}
+
+impl Default for LearningRates {
+    fn default() -> Self {
+        // feature_lr 0.01 (TRAN-D; 2DGS uses 0.0025), rest coefficients feature_lr / 20.
+        let feature = 0.01;
+        Self {
+            means: LrSchedule::LogLinear {
+                from: 1.6e-4,
+                to: 1.6e-6,
+                max_steps: 1500,
+            },
+            log_scales: LrSchedule::Constant(0.005),
+            quats: LrSchedule::Constant(0.001),
+            opacity: LrSchedule::Constant(0.05),
+            sh_dc: LrSchedule::Constant(feature),
+            sh_rest: LrSchedule::Constant(feature / 20.0),
+            mask_dc: LrSchedule::Constant(feature),
+            mask_rest: LrSchedule::Constant(feature / 20.0),
+            obj_logits: LrSchedule::LogLinear {
+                from: 0.1,
+                to: 0.0025,
+                max_steps: 1000,
+            },
+        }
+    }
+}
+
+impl LearningRates {
+    pub fn schedule(&self, g: ParamGroup) -> &LrSchedule {
+        match g {
+            ParamGroup::Means => &self.means,
+            ParamGroup::LogScales => &self.log_scales,
+            ParamGroup::Quats => &self.quats,
+            ParamGroup::Opacity => &self.opacity,
+            ParamGroup::ShDc => &self.sh_dc,
+            ParamGroup::ShRest => &self.sh_rest,
+            ParamGroup::MaskDc => &self.mask_dc,
+            ParamGroup::MaskRest => &self.mask_rest,
+            ParamGroup::ObjLogits => &self.obj_logits,
+        }
+    }
+
+    /// Rates of every group at `iteration`, the position rate multiplied by `spatial_scale`.
+    pub fn at(&self, iteration: u32, spatial_scale: f64) -> GroupLr {
+        let mut out = GroupLr::uniform(0.0);
+        for g in ParamGroup::ALL {
+            let s = if g == ParamGroup::Means { spatial_scale } else { 1.0 };
+            out.0[group_index(g)] = self.schedule(g).at(iteration) * s;
+        }
+        out
+    }
+}
+
+/// Densification, pruning and opacity reset (reference notes §2.2).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DensifyConfig {
+    /// Densify when `iteration > from_iteration`, `iteration < until_iteration` and
+    /// `iteration % interval == 0`.
+    pub interval: u32,
+    pub from_iteration: u32,
+    pub until_iteration: u32,
+    /// Threshold on the mean ‖∂L/∂means2D‖ (NDC units).
+    pub grad_threshold: f32,
+    /// Clone vs split boundary and the densification size unit: `percent_dense · extent`.
+    pub percent_dense: f32,
+    /// Prune when `σ(opacity) < opacity_cull`.
+    pub opacity_cull: f32,
+    /// Opacity reset to `min(σ, 0.01)`, while `iteration < until_iteration`.
+    pub opacity_reset: Periodic,
+    /// Screen-space size limit (pixels), used once the first opacity reset has passed.
+    pub screen_size_threshold: f32,
+    pub screen_size_pruning: ScreenSizePruning,
+    /// World-size pruning: max scale > `world_size_fraction · extent` (with the screen-size test).
+    pub world_size_fraction: f32,
+    /// Children per split surfel (N = 2).
+    pub split_children: usize,
+    /// Split children's scale divisor, `0.8 · N` = 1.6.
+    pub split_scale_divisor: f32,
+    /// Value opacity is clamped to at a reset.
+    pub opacity_reset_value: f32,
+}
+
+impl Default for DensifyConfig {
+    fn default() -> Self {
+        Self {
+            interval: 20,
+            from_iteration: 0,
+            until_iteration: 30_000,
+            grad_threshold: 0.0002,
+            percent_dense: 0.01,
+            opacity_cull: 0.005,
+            opacity_reset: Periodic::Every(100),
+            screen_size_threshold: 20.0,
+            screen_size_pruning: ScreenSizePruning::AsReference,
+            world_size_fraction: 0.1,
+            split_children: 2,
+            split_scale_divisor: 1.6,
+            opacity_reset_value: 0.01,
+        }
+    }
+}
+
+impl DensifyConfig {
+    /// Whether densify-and-prune runs after the backward pass of `iteration`.
+    pub fn densify_now(&self, iteration: u32) -> bool {
+        iteration < self.until_iteration
+            && iteration > self.from_iteration
+            && self.interval > 0
+            && iteration % self.interval == 0
+    }
+
+    /// Whether the opacity reset runs at `iteration` (after densification).
+    pub fn reset_opacity_now(&self, iteration: u32) -> bool {
+        iteration < self.until_iteration && self.opacity_reset.fires(iteration)
+    }
+
+    /// The screen-size threshold passed to densify-and-prune at `iteration`: set once the iteration is past
+    /// the opacity-reset interval (`20 if iteration > opacity_reset_interval else None`).
+    pub fn size_threshold(&self, iteration: u32) -> Option<f32> {
+        match self.opacity_reset {
+            Periodic::Every(n) if iteration > n => Some(self.screen_size_threshold),
+            _ => None,
+        }
+    }
+}
+
+/// The object-aware loss and when it runs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ObjectLossConfig {
+    pub active: Activation,
+    /// Weight of the whole loss (the per-term weights are in `params`).
+    pub weight: f64,
+    pub params: ObjectLossParams,
+}
+
+impl Default for ObjectLossConfig {
+    fn default() -> Self {
+        Self {
+            active: Activation::After(100),
+            weight: 1.0,
+            params: ObjectLossParams::default(),
+        }
+    }
+}
+
+/// 2DGS normal-consistency and distortion losses (weight 0 = off, the released code's behaviour).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GeometryLossConfig {
+    /// 2DGS / pre-release TRAN-D value when on: 0.05.
+    pub lambda_normal: f64,
+    /// 2DGS bounded scenes / pre-release TRAN-D value when on: 1000.
+    pub lambda_dist: f64,
+    /// Pre-release TRAN-D gate: iterations > 300.
+    pub active: Activation,
+}
+
+impl Default for GeometryLossConfig {
+    fn default() -> Self {
+        Self {
+            lambda_normal: 0.0,
+            lambda_dist: 0.0,
+            active: Activation::After(300),
+        }
+    }
+}
+
+/// Weights of the image losses (reference notes §2.5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImageLossConfig {
+    pub lambda_dssim: f64,
+    /// Weight of the RGB photometric loss.
+    pub rgb: f64,
+    /// Weight of the mask-colour photometric loss.
+    pub mask: f64,
+    /// Weight of the Dice loss on the object map.
+    pub dice: f64,
+}
+
+impl Default for ImageLossConfig {
+    fn default() -> Self {
+        Self {
+            lambda_dssim: 0.2,
+            rgb: 0.5,
+            mask: 0.5,
+            dice: 1.0,
+        }
+    }
+}
+
+/// Everything that controls one optimisation run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Iterations to run; they are numbered `start_iteration + 1 ..= start_iteration + iterations`.
+    pub iterations: u32,
+    pub start_iteration: u32,
+    pub lr: LearningRates,
+    pub spatial_lr_scale: SpatialLrScale,
+    pub adam: AdamParams,
+    pub image_loss: ImageLossConfig,
+    pub densify: DensifyConfig,
+    pub object_loss: ObjectLossConfig,
+    pub geometry_loss: GeometryLossConfig,
+    /// SH degree (0: the released code's effective degree, §10 row 10).
+    pub sh_degree: u32,
+    /// Rasterizer near plane (metres).
+    pub near: f32,
+    pub background: [f32; 3],
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            iterations: 1000,
+            start_iteration: 0,
+            lr: LearningRates::default(),
+            spatial_lr_scale: SpatialLrScale::CameraExtent,
+            adam: AdamParams::default(),
+            image_loss: ImageLossConfig::default(),
+            densify: DensifyConfig::default(),
+            object_loss: ObjectLossConfig::default(),
+            geometry_loss: GeometryLossConfig::default(),
+            sh_degree: 0,
+            near: 0.2,
+            background: [0.0; 3],
+            seed: 0,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// The t = 1 refinement (`train_after.py` with run.sh's overrides): 100 iterations after 1000, opacity
+    /// lr 0.5, constant object lr 0.1, densify every 50 from 1000, no opacity reset, no object loss,
+    /// unscaled position lr.
+    pub fn t1() -> Self {
+        let mut c = Self {
+            iterations: 100,
+            start_iteration: 1000,
+            spatial_lr_scale: SpatialLrScale::Fixed(1.0),
+            ..Self::default()
+        };
+        c.lr.opacity = LrSchedule::Constant(0.5);
+        c.lr.obj_logits = LrSchedule::Constant(0.1);
+        c.densify.interval = 50;
+        c.densify.from_iteration = 1000;
+        c.densify.opacity_reset = Periodic::Never;
+        c.object_loss.active = Activation::Never;
+        c
+    }
+
+    /// The iterations of this run, in order.
+    pub fn iteration_range(&self) -> std::ops::RangeInclusive<u32> {
+        self.start_iteration + 1..=self.start_iteration + self.iterations
+    }
+
+    /// Learning rates at `iteration`, given the scene extent (used when the scale is `CameraExtent`).
+    pub fn learning_rates(&self, iteration: u32, camera_extent: f64) -> GroupLr {
+        let s = match self.spatial_lr_scale {
+            SpatialLrScale::CameraExtent => camera_extent,
+            SpatialLrScale::Fixed(s) => s,
+        };
+        self.lr.at(iteration, s)
+    }
+
+    pub fn from_toml_str(s: &str) -> Result<Self, ConfigError> {
+        let c: Self = toml::from_str(s)?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    pub fn from_toml_file(path: &Path) -> Result<Self, ConfigError> {
+        let s = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml_str(&s)
+    }
+
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string(self).expect("a TrainConfig always serialises")
+    }
+
+    /// Rejects values no run can use.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |m: String| Err(ConfigError::Invalid(m));
+        if self.sh_degree > trand_core::sh::MAX_SH_DEGREE {
+            return bad(format!(
+                "sh_degree {} > {}",
+                self.sh_degree,
+                trand_core::sh::MAX_SH_DEGREE
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.image_loss.lambda_dssim) {
+            return bad(format!("lambda_dssim {} outside [0, 1]", self.image_loss.lambda_dssim));
+        }
+        if self.densify.split_children == 0 || self.densify.split_scale_divisor <= 0.0 {
+            return bad("split needs ≥ 1 child and a positive scale divisor".into());
+        }
+        if self.object_loss.params.membership_threshold < 0.5 {
+            return bad("object membership threshold must be ≥ 0.5".into());
+        }
+        if self
+            .object_loss
+            .params
+            .levels
+            .iter()
+            .any(|l| l.centres < 2 || l.neighbours == 0)
+        {
+            return bad("object loss levels need ≥ 2 centres and ≥ 1 neighbour".into());
+        }
+        for g in ParamGroup::ALL {
+            match *self.lr.schedule(g) {
+                LrSchedule::Constant(lr) if lr.is_finite() && lr >= 0.0 => {}
+                LrSchedule::LogLinear { from, to, .. }
+                    if from > 0.0 && to > 0.0 && from.is_finite() && to.is_finite() => {}
+                LrSchedule::LogLinear { from, to, .. } if from == 0.0 && to == 0.0 => {}
+                s => return bad(format!("learning rate of {}: {s:?}", g.name())),
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_is_tran_d_t0() {
+        let c = TrainConfig::default();
+        let lr = c.learning_rates(1, 2.0);
+        assert!(
+            (lr.get(ParamGroup::Means)
+                - 2.0
+                    * LrSchedule::LogLinear {
+                        from: 1.6e-4,
+                        to: 1.6e-6,
+                        max_steps: 1500
+                    }
+                    .at(1))
+            .abs()
+                < 1e-18
+        );
+        assert_eq!(lr.get(ParamGroup::ShRest), 0.0005);
+        assert_eq!(lr.get(ParamGroup::Opacity), 0.05);
+        assert!((c.learning_rates(1000, 1.0).get(ParamGroup::ObjLogits) - 0.0025).abs() < 1e-15);
+        // Densify at 20, 40, …, 1000; reset at 100, 200, …; screen size only after 100.
+        assert!(!c.densify.densify_now(0) && c.densify.densify_now(20) && !c.densify.densify_now(30));
+        assert!(c.densify.reset_opacity_now(100) && !c.densify.reset_opacity_now(150));
+        assert_eq!(c.densify.size_threshold(100), None);
+        assert_eq!(c.densify.size_threshold(120), Some(20.0));
+        assert!(!c.object_loss.active.is_active(100) && c.object_loss.active.is_active(101));
+        assert_eq!(c.iteration_range(), 1..=1000);
+    }
+
+    #[test]
+    fn t1_preset_matches_train_after() {
+        let c = TrainConfig::t1();
+        assert_eq!(c.iteration_range(), 1001..=1100);
+        let lr = c.learning_rates(1050, 7.0);
+        assert_eq!(lr.get(ParamGroup::Opacity), 0.5);
+        assert_eq!(lr.get(ParamGroup::ObjLogits), 0.1);
+        // Unscaled position lr: 1.6e-4·0.01^(1050/1500).
+        assert!((lr.get(ParamGroup::Means) - 1.6e-4 * 0.01f64.powf(0.7)).abs() < 1e-15);
+        let densify_its: Vec<u32> = c.iteration_range().filter(|&i| c.densify.densify_now(i)).collect();
+        assert_eq!(densify_its, vec![1050, 1100]);
+        assert!(
+            c.iteration_range()
+                .all(|i| !c.densify.reset_opacity_now(i) && c.densify.size_threshold(i).is_none())
+        );
+        assert!(c.iteration_range().all(|i| !c.object_loss.active.is_active(i)));
+    }
+
+    #[test]
+    fn toml_round_trips_and_partial_files_take_defaults() {
+        for c in [TrainConfig::default(), TrainConfig::t1()] {
+            let s = c.to_toml_string();
+            assert_eq!(TrainConfig::from_toml_str(&s).unwrap(), c, "{s}");
+        }
+        let c = TrainConfig::from_toml_str(
+            "iterations = 50\n[densify]\nopacity_reset = \"never\"\n[lr]\nopacity = { constant = 0.5 }\n[geometry_loss]\nlambda_normal = 0.05\n",
+        )
+        .unwrap();
+        assert_eq!(c.iterations, 50);
+        assert_eq!(c.densify.opacity_reset, Periodic::Never);
+        assert_eq!(c.lr.opacity, LrSchedule::Constant(0.5));
+        assert_eq!(c.geometry_loss.lambda_normal, 0.05);
+        assert_eq!(c.densify.interval, 20);
+    }
+
+    #[test]
+    fn invalid_values_and_unknown_keys_are_rejected() {
+        assert!(matches!(
+            TrainConfig::from_toml_str("sh_degree = 4"),
+            Err(ConfigError::Invalid(_))
+        ));
+        assert!(matches!(
+            TrainConfig::from_toml_str("iteratons = 5"),
+            Err(ConfigError::Parse(_))
+        ));
+        assert!(matches!(
+            TrainConfig::from_toml_str("[lr]\nmeans = { log_linear = { from = 0.0, to = 1e-6, max_steps = 10 } }"),
+            Err(ConfigError::Invalid(_))
+        ));
+    }
+}
