@@ -5,12 +5,14 @@
 //! * `RUN/depth/{frame:06}.npy`: float32 `(H, W)` predicted depth in metres (0 = no prediction), one per
 //!   test view of the state (`test_0` for t0, `test_1` for t1).
 //!
-//! Writes `RUN/metrics.json` (atomically): the [`Metrics`] plus the state and the data path.
+//! File names come from [`trand_io::run_layout`]. Writes `RUN/metrics.json` (atomically): the [`Metrics`] plus the state and the data path.
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
-use trand_io::{IoError, Load, LoadOptions, Split, State, read_npy_f32, read_sequence_with};
+use trand_io::{
+    IoError, Load, LoadOptions, Split, State, read_npy_f32, read_sequence_with, run_layout,
+};
 
 use crate::metrics::{EvalError, Metrics, evaluate};
 
@@ -43,7 +45,7 @@ pub enum RunEvalError {
 
 /// The state recorded in `RUN/run.json`, if any.
 pub fn run_state(run: &Path) -> Result<Option<State>, RunEvalError> {
-    let path = run.join("run.json");
+    let path = run.join(run_layout::RUN_JSON);
     if !path.is_file() {
         return Ok(None);
     }
@@ -68,9 +70,9 @@ pub fn run_state(run: &Path) -> Result<Option<State>, RunEvalError> {
     }
 }
 
-/// Path of the predicted depth of a frame.
+/// Path of the predicted depth of a frame (see [`trand_io::run_layout`]).
 pub fn prediction_path(run: &Path, frame: u32) -> PathBuf {
-    run.join("depth").join(format!("{frame:06}.npy"))
+    run_layout::depth_path(run, frame)
 }
 
 #[derive(Serialize)]
@@ -92,7 +94,7 @@ pub fn evaluate_run(
     let state = match (state, recorded) {
         (Some(s), Some(r)) if s != r => {
             return Err(RunEvalError::RunState {
-                path: run.join("run.json"),
+                path: run.join(run_layout::RUN_JSON),
                 reason: format!("run is {} but {} was asked for", r.as_str(), s.as_str()),
             });
         }
@@ -144,6 +146,6 @@ pub fn evaluate_run(
         metrics: &metrics,
     };
     let json = serde_json::to_vec_pretty(&report).expect("metrics serialise");
-    trand_io::write_atomic(&run.join("metrics.json"), &json)?;
+    trand_io::write_atomic(&run.join(run_layout::METRICS_JSON), &json)?;
     Ok((state, metrics))
 }

@@ -172,9 +172,10 @@ fn read_split(
     let cams = Obj::root(&cam_path, &cams)?;
     let masks = mask_files(dir)?;
     for (frame, v) in &masks {
-        let ids: Vec<u16> = v.iter().map(|(o, _)| *o).collect();
-        opts.check_ids(&ids, &v[0].1, &format!("mask_visib of frame {frame}"))?;
-        ids_seen.extend(ids);
+        for (id, path) in v {
+            opts.check_ids(&[*id], path, &format!("object id of frame {frame}'s mask"))?;
+            ids_seen.push(*id);
+        }
     }
     let mut frames: Vec<(u32, &str)> = Vec::new();
     for key in cams.value.as_object().into_iter().flat_map(|m| m.keys()) {

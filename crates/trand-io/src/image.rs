@@ -10,13 +10,26 @@ use std::path::Path;
 
 use crate::error::IoError;
 
-/// Row-major interleaved image.
-#[derive(Clone, Debug, PartialEq)]
+/// Row-major interleaved image. `Debug` prints the shape, not the pixels.
+#[derive(Clone, PartialEq)]
 pub struct Image<T> {
     pub width: u32,
     pub height: u32,
     pub channels: u32,
     pub data: Vec<T>,
+}
+
+impl<T> std::fmt::Debug for Image<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Image({}x{}x{}, {} values)",
+            self.width,
+            self.height,
+            self.channels,
+            self.data.len()
+        )
+    }
 }
 
 /// 8-bit RGB image.

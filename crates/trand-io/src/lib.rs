@@ -19,6 +19,7 @@ pub mod npy;
 mod paths;
 pub mod ply;
 mod pose;
+pub mod run_layout;
 pub mod scratch;
 pub mod transforms;
 pub mod view;

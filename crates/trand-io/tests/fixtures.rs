@@ -244,7 +244,10 @@ fn object_ids_beyond_the_channel_budget_are_rejected() {
         ),
         "{e}"
     );
-    assert!(e.to_string().contains("mask_visib"), "{e}");
+    assert!(
+        e.to_string().contains("mask_visib/000000_000005.png"),
+        "{e}"
+    );
     let opts = LoadOptions {
         object_channels: Some(6),
         ..LoadOptions::default()
