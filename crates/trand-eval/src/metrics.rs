@@ -34,6 +34,8 @@ pub enum EvalError {
     },
     #[error("GT view {view} has no {what} loaded")]
     MissingGt { view: String, what: &'static str },
+    #[error("GT view {view}: instance map and depth differ in size or are not single-channel")]
+    GtInconsistent { view: String },
     #[error("no GT views to evaluate")]
     NoViews,
 }
@@ -114,7 +116,7 @@ impl Metrics {
     }
 }
 
-/// Counts of one view: `gt_depth`, `instance` and `pred` of the same size.
+/// Counts of one view: `gt_depth`, `instance` and `pred` of the same size (checked by [`evaluate`]).
 pub fn view_counts(
     pred: &DepthMap,
     gt_depth: &DepthMap,
@@ -171,6 +173,11 @@ pub fn evaluate(pred: &[(String, DepthMap)], gt: &[View]) -> Result<Metrics, Eva
                 pred_h: p.height,
                 gt_w: d.width,
                 gt_h: d.height,
+            });
+        }
+        if !m.same_size(d) || m.channels != 1 || d.channels != 1 {
+            return Err(EvalError::GtInconsistent {
+                view: v.name.clone(),
             });
         }
         let c = view_counts(p, d, m);
@@ -301,6 +308,13 @@ mod tests {
                 ..
             })
         ));
+        let mut bad = view("a", vec![1.0; 4], vec![1; 4]);
+        bad.instance = Some(Image::filled(1, 1, 1, 1u16));
+        assert_eq!(
+            evaluate(&[pred("a", vec![1.0; 4])], &[bad]),
+            Err(EvalError::GtInconsistent { view: "a".into() })
+        );
+        assert_eq!(evaluate(&[], &[]), Err(EvalError::NoViews));
     }
 
     #[test]
