@@ -17,6 +17,8 @@ struct Cli {
 enum Command {
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
+    Eval(cmd::eval::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -27,6 +29,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(a),
+        Command::Eval(a) => cmd::eval::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

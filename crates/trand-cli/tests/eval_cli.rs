@@ -1,0 +1,63 @@
+//! `trand eval` as a user runs it, on seq_101 with GT depth copied as the prediction.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use trand_io::{LoadOptions, ScratchDir, read_sequence_with};
+
+#[test]
+fn eval_of_gt_copy_prints_perfect_row_and_writes_metrics_json() {
+    let data =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender/seq_101");
+    if !data.join("test_0").is_dir() {
+        eprintln!("note: {} absent, test skipped", data.display());
+        return;
+    }
+    let run = ScratchDir::new("cli-eval").unwrap();
+    std::fs::write(run.path().join("run.json"), r#"{"state": "t0"}"#).unwrap();
+    let seq = read_sequence_with(&data, &LoadOptions::for_eval()).unwrap();
+    for v in &seq.test_t0 {
+        trand_io::write_npy_f32(
+            &trand_eval::prediction_path(run.path(), v.frame),
+            v.depth.as_ref().unwrap(),
+        )
+        .unwrap();
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_trand"))
+        .args(["eval", "--run"])
+        .arg(run.path())
+        .arg("--data")
+        .arg(&data)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        stdout.contains("| seq_101 t0 | 0.0000 | 0.0000 | 100.00% | 100.00% |"),
+        "{stdout}"
+    );
+    assert!(run.path().join("metrics.json").is_file());
+    // A missing prediction fails with the file named.
+    std::fs::remove_file(trand_eval::prediction_path(
+        run.path(),
+        seq.test_t0[0].frame,
+    ))
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_trand"))
+        .args(["eval", "--run"])
+        .arg(run.path())
+        .arg("--data")
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("missing prediction"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -1,0 +1,151 @@
+//! Evaluating a run folder against a sequence (`trand eval`).
+//!
+//! Run-folder contract:
+//! * `RUN/run.json` (optional): a JSON object with at least `"state": "t0" | "t1"`.
+//! * `RUN/depth/{frame:06}.npy`: float32 `(H, W)` predicted depth in metres (0 = no prediction), one per
+//!   test view of the state (`test_0` for t0, `test_1` for t1).
+//!
+//! File names come from [`trand_io::run_layout`]. Writes `RUN/metrics.json` (atomically): the [`Metrics`] plus the state and the data path.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use trand_io::{
+    IoError, Load, LoadOptions, Split, State, read_npy_f32, read_sequence_with, run_layout,
+};
+
+use crate::metrics::{EvalError, Metrics, evaluate};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunEvalError {
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    #[error("missing prediction {path} for test view {view}")]
+    MissingPrediction { path: PathBuf, view: String },
+    #[error("{path}: predicted depth is {pred_w}x{pred_h}, test view {view} is {gt_w}x{gt_h}")]
+    SizeMismatch {
+        path: PathBuf,
+        view: String,
+        pred_w: u32,
+        pred_h: u32,
+        gt_w: u32,
+        gt_h: u32,
+    },
+    #[error("{path}: field `state`: {reason}")]
+    RunState { path: PathBuf, reason: String },
+    #[error("{data}: no test views for state {state} ({folder}/)")]
+    NoTestViews {
+        data: PathBuf,
+        state: &'static str,
+        folder: &'static str,
+    },
+}
+
+/// The state recorded in `RUN/run.json`, if any.
+pub fn run_state(run: &Path) -> Result<Option<State>, RunEvalError> {
+    let path = run.join(run_layout::RUN_JSON);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|source| IoError::Io {
+        path: path.clone(),
+        source,
+    })?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|source| IoError::Json {
+        path: path.clone(),
+        source,
+    })?;
+    match v.get("state") {
+        None | Some(serde_json::Value::Null) => Ok(None),
+        Some(serde_json::Value::String(s)) => s
+            .parse()
+            .map(Some)
+            .map_err(|reason| RunEvalError::RunState { path, reason }),
+        Some(other) => Err(RunEvalError::RunState {
+            path,
+            reason: format!("expected \"t0\" or \"t1\", found {other}"),
+        }),
+    }
+}
+
+/// Path of the predicted depth of a frame (see [`trand_io::run_layout`]).
+pub fn prediction_path(run: &Path, frame: u32) -> PathBuf {
+    run_layout::depth_path(run, frame)
+}
+
+#[derive(Serialize)]
+struct Report<'a> {
+    state: State,
+    data: String,
+    #[serde(flatten)]
+    metrics: &'a Metrics,
+}
+
+/// Evaluates `run` against the sequence at `data`. The state is `state` if given, else `run.json`'s,
+/// else t0; an explicit state that contradicts `run.json` is an error. Writes `RUN/metrics.json`.
+pub fn evaluate_run(
+    run: &Path,
+    data: &Path,
+    state: Option<State>,
+) -> Result<(State, Metrics), RunEvalError> {
+    let recorded = run_state(run)?;
+    let state = match (state, recorded) {
+        (Some(s), Some(r)) if s != r => {
+            return Err(RunEvalError::RunState {
+                path: run.join(run_layout::RUN_JSON),
+                reason: format!("run is {} but {} was asked for", r.as_str(), s.as_str()),
+            });
+        }
+        (Some(s), _) | (None, Some(s)) => s,
+        (None, None) => State::T0,
+    };
+    let opts = LoadOptions {
+        rgb: Load::No,
+        masks: Load::Yes,
+        depth: Load::Yes,
+        object_channels: None,
+    };
+    let seq = read_sequence_with(data, &opts)?;
+    let gt = seq.views(Split::Test, state);
+    if gt.is_empty() {
+        return Err(RunEvalError::NoTestViews {
+            data: data.into(),
+            state: state.as_str(),
+            folder: Split::Test.folder(state),
+        });
+    }
+    let mut preds = Vec::with_capacity(gt.len());
+    for v in gt {
+        let path = prediction_path(run, v.frame);
+        if !path.is_file() {
+            return Err(RunEvalError::MissingPrediction {
+                path,
+                view: v.name.clone(),
+            });
+        }
+        let d = read_npy_f32(&path)?;
+        let k = v.camera.intrinsics;
+        if (d.width, d.height) != (k.width, k.height) {
+            return Err(RunEvalError::SizeMismatch {
+                path,
+                view: v.name.clone(),
+                pred_w: d.width,
+                pred_h: d.height,
+                gt_w: k.width,
+                gt_h: k.height,
+            });
+        }
+        preds.push((v.name.clone(), d));
+    }
+    let metrics = evaluate(&preds, gt)?;
+    let report = Report {
+        state,
+        data: data.display().to_string(),
+        metrics: &metrics,
+    };
+    let json = serde_json::to_vec_pretty(&report).expect("metrics serialise");
+    trand_io::write_atomic(&run.join(run_layout::METRICS_JSON), &json)?;
+    Ok((state, metrics))
+}
