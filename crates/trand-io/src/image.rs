@@ -96,6 +96,16 @@ impl Image<u8> {
 }
 
 impl InstanceMap {
+    /// Binary mask of the pixels labelled `id` (row-major).
+    pub fn mask(&self, id: u16) -> Vec<bool> {
+        self.data.iter().map(|&v| v == id).collect()
+    }
+
+    /// Binary mask of all object pixels (id ≠ 0).
+    pub fn foreground(&self) -> Vec<bool> {
+        self.data.iter().map(|&v| v != 0).collect()
+    }
+
     /// Sorted distinct non-zero ids present in the map.
     pub fn ids(&self) -> Vec<u16> {
         let mut seen = vec![false; u16::MAX as usize + 1];
@@ -216,4 +226,19 @@ pub fn read_depth_png(path: &Path, mm_per_unit: f64) -> Result<DepthMap, IoError
             .map(|v| (v as f64 * s) as f32)
             .collect(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn instance_map_lists_ids_and_masks() {
+        let m: InstanceMap = Image::from_vec(3, 1, 1, vec![0, 7, 300]).unwrap();
+        assert_eq!(m.ids(), vec![7, 300]);
+        assert_eq!(m.mask(7), vec![false, true, false]);
+        assert_eq!(m.foreground(), vec![false, true, true]);
+        assert_eq!(format!("{m:?}"), "Image(3x1x1, 3 values)");
+        assert!(Image::from_vec(2, 2, 1, vec![0u8; 3]).is_none());
+    }
 }
