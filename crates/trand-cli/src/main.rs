@@ -17,6 +17,8 @@ struct Cli {
 enum Command {
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// t=0: object-aware 2DGS reconstruction from the training views.
+    Reconstruct(cmd::reconstruct::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
     Eval(cmd::eval::Args),
 }
@@ -29,6 +31,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(a),
+        Command::Reconstruct(a) => cmd::reconstruct::run(a),
         Command::Eval(a) => cmd::eval::run(a),
     };
     match result {
