@@ -11,6 +11,12 @@
 //!
 //! The crate renders nothing: the caller renders depth maps and hands them over.
 
+pub mod mesh;
 pub mod mpm;
+pub mod tsdf;
+pub mod virtual_views;
 
+pub use mesh::{Mesh, MeshError};
 pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume};
+pub use tsdf::{TsdfError, TsdfVolume};
+pub use virtual_views::{below_view, ring_views};
