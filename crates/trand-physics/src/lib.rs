@@ -13,10 +13,12 @@
 
 pub mod mesh;
 pub mod mpm;
+pub mod particles;
 pub mod tsdf;
 pub mod virtual_views;
 
 pub use mesh::{Mesh, MeshError};
 pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume};
+pub use particles::{InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles};
 pub use tsdf::{TsdfError, TsdfVolume};
 pub use virtual_views::{below_view, ring_views};
