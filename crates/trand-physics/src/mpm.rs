@@ -19,8 +19,9 @@
 //! The grid is dense over the bounding box of the particles' stencils, recomputed every substep
 //! (`grid_lo` = smallest base node, extent = box + 3 nodes), so world coordinates are used
 //! directly, like the authors' unbounded sparse grid, and memory follows the scene, not a
-//! fixed domain. Node layout is `[z][y][x]` (x fastest), one `[mv_x, mv_y, mv_z, m]` (later
-//! `[v_x, v_y, v_z, m]`) per node.
+//! fixed domain. Node layout is `[z][y][x]` (x fastest), one `Vec4` `(mv_x, mv_y, mv_z, m)`
+//! (after the grid update `(v_x, v_y, v_z, m)`) per node, so that a node update is one SIMD
+//! multiply-add.
 //!
 //! # Determinism
 //! Particles are kept sorted by 4×4×4-cell block (re-sorted at the start of every frame with a
@@ -37,7 +38,7 @@
 //! two iterations per substep; it always returns a proper rotation (det +1), also for inverted
 //! `F`, where it maximises `tr(RᵀF)` like the rotation-variant SVD `U Vᵀ` does.
 
-use glam::{DMat3, DQuat, DVec3, IVec3, Mat3, Quat, Vec3};
+use glam::{DMat3, DQuat, DVec3, IVec3, Mat3, Quat, Vec3, Vec4};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -213,7 +214,7 @@ struct Particle {
 struct ChunkGrid {
     lo: IVec3,
     dims: IVec3,
-    nodes: Vec<[f32; 4]>,
+    nodes: Vec<Vec4>,
     affine: Vec<Mat3>,
 }
 
@@ -237,7 +238,7 @@ pub struct MpmSolver {
     config: MpmConfig,
     particles: Vec<Particle>,
     chunks: Vec<ChunkGrid>,
-    grid: Vec<[f32; 4]>,
+    grid: Vec<Vec4>,
     grid_lo: IVec3,
     grid_dims: IVec3,
     frames_done: u32,
@@ -387,7 +388,7 @@ impl MpmSolver {
         if nodes > self.config.max_grid_nodes {
             return Err(MpmError::GridTooLarge { nodes, max: self.config.max_grid_nodes });
         }
-        self.grid.resize(nodes, [0.0; 4]);
+        self.grid.resize(nodes, Vec4::ZERO);
         (self.grid_lo, self.grid_dims) = (lo, dims);
         let layer = (dims.x * dims.y) as usize;
         let chunks = &self.chunks;
@@ -395,7 +396,7 @@ impl MpmSolver {
         // 2. Assemble (chunk order fixed) and update the grid, one z-layer per task.
         self.grid.par_chunks_mut(layer).enumerate().for_each(|(z, nodes)| {
             let gz = lo.z + z as i32;
-            nodes.fill([0.0; 4]);
+            nodes.fill(Vec4::ZERO);
             for cg in chunks {
                 add_chunk_layer(nodes, lo, dims, gz, cg);
             }
@@ -454,13 +455,14 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
     cg.dims = hi - lo + IVec3::splat(3);
     let (nx, ny) = (cg.dims.x as usize, cg.dims.y as usize);
     cg.nodes.clear();
-    cg.nodes.resize(nx * ny * cg.dims.z as usize, [0.0; 4]);
+    cg.nodes.resize(nx * ny * cg.dims.z as usize, Vec4::ZERO);
     for (p, a) in ps.iter().zip(&cg.affine) {
         let (base, fx) = stencil(p.x, sp.inv_dx);
         let w = bspline_weights(fx);
         // Momentum sent to node b + o: m v + A (o − f) dx, built incrementally along each axis.
-        let m0 = sp.p_mass * p.v - *a * (fx * sp.dx);
-        let (ax, ay, az) = (a.x_axis * sp.dx, a.y_axis * sp.dx, a.z_axis * sp.dx);
+        // (momentum, mass) as one Vec4; the affine columns carry no mass (w = 0).
+        let m0 = (sp.p_mass * p.v - *a * (fx * sp.dx)).extend(sp.p_mass);
+        let (ax, ay, az) = ((a.x_axis * sp.dx).extend(0.0), (a.y_axis * sp.dx).extend(0.0), (a.z_axis * sp.dx).extend(0.0));
         let o = (base - lo).as_uvec3();
         for k in 0..3 {
             let mk = m0 + az * k as f32;
@@ -469,13 +471,7 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
                 let wjk = w[j].y * w[k].z;
                 let row = ((o.z as usize + k) * ny + o.y as usize + j) * nx + o.x as usize;
                 for i in 0..3 {
-                    let mom = mjk + ax * i as f32;
-                    let wt = w[i].x * wjk;
-                    let n = &mut cg.nodes[row + i];
-                    n[0] += wt * mom.x;
-                    n[1] += wt * mom.y;
-                    n[2] += wt * mom.z;
-                    n[3] += wt * sp.p_mass;
+                    cg.nodes[row + i] += (w[i].x * wjk) * (mjk + ax * i as f32);
                 }
             }
         }
@@ -483,7 +479,7 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
 }
 
 /// Adds the part of one chunk grid that lies in global layer `gz`.
-fn add_chunk_layer(layer: &mut [[f32; 4]], lo: IVec3, dims: IVec3, gz: i32, cg: &ChunkGrid) {
+fn add_chunk_layer(layer: &mut [Vec4], lo: IVec3, dims: IVec3, gz: i32, cg: &ChunkGrid) {
     let lz = gz - cg.lo.z;
     if lz < 0 || lz >= cg.dims.z {
         return;
@@ -494,39 +490,35 @@ fn add_chunk_layer(layer: &mut [[f32; 4]], lo: IVec3, dims: IVec3, gz: i32, cg: 
         let src = &cg.nodes[(lz as usize * cny + y) * cnx..][..cnx];
         let dst_start = (off.y as usize + y) * dims.x as usize + off.x as usize;
         for (d, s) in layer[dst_start..dst_start + cnx].iter_mut().zip(src) {
-            for c in 0..4 {
-                d[c] += s[c];
-            }
+            *d += *s;
         }
     }
 }
 
 /// Grid update of one z-layer: momentum → velocity, gravity, sticky ground.
-fn grid_update_layer(layer: &mut [[f32; 4]], gz: i32, sp: &StepParams) {
+fn grid_update_layer(layer: &mut [Vec4], gz: i32, sp: &StepParams) {
     let below_ground = match sp.ground {
         Ground::Sticky { height } => (gz as f32) * sp.dx < height,
         Ground::None => false,
     };
+    let dv = (sp.dt * sp.gravity).extend(0.0);
     for n in layer.iter_mut() {
-        if n[3] > 0.0 {
-            let v = if below_ground {
-                Vec3::ZERO
-            } else {
-                Vec3::new(n[0], n[1], n[2]) / n[3] + sp.dt * sp.gravity
-            };
-            (n[0], n[1], n[2]) = (v.x, v.y, v.z);
+        if n.w > 0.0 {
+            let v = if below_ground { Vec4::ZERO } else { *n / n.w + dv };
+            *n = v.truncate().extend(n.w);
         }
     }
 }
 
 /// G2P for one chunk: gather velocity and APIC matrix, advect.
-fn g2p_chunk(ps: &mut [Particle], grid: &[[f32; 4]], lo: IVec3, dims: IVec3, sp: &StepParams) {
+fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &StepParams) {
     let (nx, ny) = (dims.x as usize, dims.y as usize);
     for p in ps.iter_mut() {
         let (base, fx) = stencil(p.x, sp.inv_dx);
         let w = bspline_weights(fx);
         let o = (base - lo).as_uvec3();
-        let (mut v, mut cx, mut cy, mut cz) = (Vec3::ZERO, Vec3::ZERO, Vec3::ZERO, Vec3::ZERO);
+        // Vec4 accumulators (w carries the node mass along, unused) for SIMD.
+        let (mut v, mut cx, mut cy, mut cz) = (Vec4::ZERO, Vec4::ZERO, Vec4::ZERO, Vec4::ZERO);
         for k in 0..3 {
             let dz = k as f32 - fx.z;
             for j in 0..3 {
@@ -534,8 +526,7 @@ fn g2p_chunk(ps: &mut [Particle], grid: &[[f32; 4]], lo: IVec3, dims: IVec3, sp:
                 let wjk = w[j].y * w[k].z;
                 let row = ((o.z as usize + k) * ny + o.y as usize + j) * nx + o.x as usize;
                 for i in 0..3 {
-                    let n = grid[row + i];
-                    let wv = (w[i].x * wjk) * Vec3::new(n[0], n[1], n[2]);
+                    let wv = (w[i].x * wjk) * grid[row + i];
                     v += wv;
                     cx += wv * (i as f32 - fx.x);
                     cy += wv * dy;
@@ -543,9 +534,9 @@ fn g2p_chunk(ps: &mut [Particle], grid: &[[f32; 4]], lo: IVec3, dims: IVec3, sp:
                 }
             }
         }
-        p.v = v;
-        p.c = (4.0 * sp.inv_dx) * Mat3::from_cols(cx, cy, cz);
-        p.x += sp.dt * v;
+        p.v = v.truncate();
+        p.c = (4.0 * sp.inv_dx) * Mat3::from_cols(cx.truncate(), cy.truncate(), cz.truncate());
+        p.x += sp.dt * p.v;
     }
 }
 
