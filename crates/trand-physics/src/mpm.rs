@@ -171,10 +171,8 @@ impl MpmConfig {
         if self.gravity.iter().any(|g| !g.is_finite()) {
             return bad("gravity must be finite");
         }
-        if let Ground::Sticky { height } = self.ground {
-            if !height.is_finite() {
-                return bad("ground height must be finite");
-            }
+        if matches!(self.ground, Ground::Sticky { height } if !height.is_finite()) {
+            return bad("ground height must be finite");
         }
         Ok(())
     }
@@ -436,6 +434,7 @@ fn floor_i32(v: Vec3) -> IVec3 {
 }
 
 /// P2G for one chunk: deformation update, stress, then scatter into the chunk's own grid.
+#[allow(clippy::needless_range_loop)] // i, j, k are node offsets as well as weight indices
 fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
     let (mut lo, mut hi) = (IVec3::MAX, IVec3::MIN);
     cg.affine.clear();
@@ -444,8 +443,8 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
         (lo, hi) = (lo.min(base), hi.max(base));
         p.f = (Mat3::IDENTITY + sp.dt * p.c) * p.f;
         let f = p.f.as_dmat3();
-        p.rot = polar_rotation(f, p.rot);
-        let r = DMat3::from_quat(p.rot);
+        let r;
+        (p.rot, r) = polar_rotation_and_matrix(f, p.rot);
         let j = f.determinant();
         // Fixed-corotated Kirchhoff stress τ = 2μ(F − R)Fᵀ + λJ(J−1)I.
         let tau = 2.0 * sp.mu * (f - r) * f.transpose() + DMat3::from_diagonal(DVec3::splat(sp.lambda * j * (j - 1.0)));
@@ -511,6 +510,7 @@ fn grid_update_layer(layer: &mut [Vec4], gz: i32, sp: &StepParams) {
 }
 
 /// G2P for one chunk: gather velocity and APIC matrix, advect.
+#[allow(clippy::needless_range_loop)] // i, j, k are node offsets as well as weight indices
 fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &StepParams) {
     let (nx, ny) = (dims.x as usize, dims.y as usize);
     for p in ps.iter_mut() {
@@ -544,6 +544,11 @@ fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &St
 /// rotation quaternion, `ω = Σᵢ rᵢ × fᵢ / (|Σᵢ rᵢ · fᵢ| + 10⁻⁹)` over the columns, `q ← exp(ω) q`,
 /// starting from `warm`. Returns a unit quaternion (a proper rotation, also for `det F ≤ 0`).
 pub fn polar_rotation(f: DMat3, warm: DQuat) -> DQuat {
+    polar_rotation_and_matrix(f, warm).0
+}
+
+/// [`polar_rotation`] and its matrix (the last iteration's, so it is not computed twice).
+fn polar_rotation_and_matrix(f: DMat3, warm: DQuat) -> (DQuat, DMat3) {
     let mut q = warm;
     for _ in 0..POLAR_MAX_ITERATIONS {
         let r = DMat3::from_quat(q);
@@ -551,15 +556,15 @@ pub fn polar_rotation(f: DMat3, warm: DQuat) -> DQuat {
         let den = (r.x_axis.dot(f.x_axis) + r.y_axis.dot(f.y_axis) + r.z_axis.dot(f.z_axis)).abs() + 1e-9;
         let omega = num / den;
         let angle = omega.length();
-        if !(angle >= POLAR_TOLERANCE) {
-            break;
+        if angle.is_nan() || angle < POLAR_TOLERANCE {
+            return (q, r);
         }
         // exp(ω) to first order, (ω/2, 1) normalised: the same fixed point (ω = 0) without a sincos,
         // and a shorter, still ascending, step when ω is large.
         let half = 0.5 * omega;
         q = (DQuat::from_xyzw(half.x, half.y, half.z, 1.0) * q).normalize();
     }
-    q
+    (q, DMat3::from_quat(q))
 }
 
 #[cfg(test)]

@@ -101,10 +101,11 @@ pub fn build_particles(objects: &[ObjectSurfels], mesh: &Mesh, fill: InteriorFil
     if !mesh.vertices.is_empty() && mesh.labels.is_none() {
         return Err(ParticleError::UnlabelledMesh);
     }
-    if let InteriorFill::RayParity { spacing } = fill {
-        if !(spacing.is_finite() && spacing > 0.0) {
+    match fill {
+        InteriorFill::RayParity { spacing } if !(spacing.is_finite() && spacing > 0.0) => {
             return Err(ParticleError::BadSpacing(spacing));
         }
+        _ => {}
     }
     for o in objects {
         if o.centres.len() != o.surfel_indices.len() {
