@@ -48,6 +48,30 @@ pub enum TsdfError {
     BadTruncation { trunc: f32, max_depth: f32 },
 }
 
+/// Fusion parameters. [`TsdfSettings::tran_d`] gives the authors' choice (Open3D
+/// `ScalableTSDFVolume` in `GaussianExtractor.extract_mesh_bounded`): depth range `2·radius`,
+/// voxel `range / 256`, truncation `5·voxel`, with `radius` the smallest camera distance to the
+/// focus point ([`crate::virtual_views::scene_radius`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TsdfSettings {
+    pub voxel: f32,
+    pub trunc: f32,
+    pub max_depth: f32,
+}
+
+impl TsdfSettings {
+    /// Voxels across the depth range in the authors' setting.
+    pub const VOXELS_PER_RANGE: f32 = 256.0;
+    /// Truncation in voxels in the authors' setting.
+    pub const TRUNC_VOXELS: f32 = 5.0;
+
+    pub fn tran_d(radius: f32) -> Self {
+        let max_depth = 2.0 * radius;
+        let voxel = max_depth / Self::VOXELS_PER_RANGE;
+        Self { voxel, trunc: Self::TRUNC_VOXELS * voxel, max_depth }
+    }
+}
+
 /// A dense truncated signed distance volume.
 #[derive(Clone, Debug)]
 pub struct TsdfVolume {
