@@ -5,15 +5,15 @@
 //! # One substep (the whole algorithm is [`MpmSolver::substep`] and the three functions it calls)
 //! With `dx` the grid spacing, nodes at integer multiples of `dx` in world coordinates, and for each
 //! particle `p` the base node `b = ⌊x/dx − ½⌋` and fractional offset `f = x/dx − b ∈ [½, 3/2)³`:
-//! 1. **P2G** ([`p2g_chunk`]): `F ← (I + Δt C) F`; the polar rotation `R` of `F` and `J = det F`
+//! 1. **P2G** (`p2g_chunk`): `F ← (I + Δt C) F`; the polar rotation `R` of `F` and `J = det F`
 //!    give the fixed-corotated Kirchhoff stress `τ = 2μ(F − R)Fᵀ + λJ(J − 1)I`; with the
 //!    quadratic B-spline weights `w_i = ½(3/2 − f)², ¾ − (f − 1)², ½(f − ½)²` (per axis, product
 //!    over axes) every one of the 3×3×3 nodes `b + o` receives
 //!    `m_I += w m_p` and `(mv)_I += w (m_p v_p + A (o − f) dx)`, with the MLS affine matrix
 //!    `A = −Δt V_p (4/dx²) τ + m_p C` (APIC momentum plus the stress impulse, eq. 18 of the paper).
-//! 2. **Grid** ([`grid_update_layer`]): `v_I = (mv)_I / m_I + Δt g`; nodes below the ground
+//! 2. **Grid** (`grid_update_layer`): `v_I = (mv)_I / m_I + Δt g`; nodes below the ground
 //!    (`z_I < z_ground`) are sticky: `v_I = 0`.
-//! 3. **G2P** ([`g2p_chunk`]): `v_p = Σ w v_I`, `C_p = (4/dx) Σ w v_I ⊗ (o − f)`, `x_p += Δt v_p`.
+//! 3. **G2P** (`g2p_chunk`): `v_p = Σ w v_I`, `C_p = (4/dx) Σ w v_I ⊗ (o − f)`, `x_p += Δt v_p`.
 //!
 //! # Grid and buffers
 //! The grid is dense over the bounding box of the particles' stencils, recomputed every substep
@@ -189,6 +189,8 @@ pub enum MpmError {
     InvalidConfig(String),
     #[error("the grid around the particles needs {nodes} nodes (max {max}): the particles span too large a region (exploded?)")]
     GridTooLarge { nodes: usize, max: usize },
+    #[error("particle {index} left the finite numbers (the simulation diverged; try smaller substeps)")]
+    Diverged { index: usize },
 }
 
 /// One material point (array-of-structs: every field is used by both transfers).
@@ -212,6 +214,8 @@ struct Particle {
 struct ChunkGrid {
     lo: IVec3,
     dims: IVec3,
+    /// Nodes this chunk's stencils would span when that exceeds the limit (nothing scattered).
+    too_large: Option<usize>,
     nodes: Vec<Vec4>,
     affine: Vec<Mat3>,
 }
@@ -229,6 +233,7 @@ struct StepParams {
     lambda: f64,
     gravity: Vec3,
     ground: Ground,
+    max_grid_nodes: usize,
 }
 
 /// MLS-MPM solver over one set of particles (all objects share the grid, so they collide).
@@ -360,6 +365,7 @@ impl MpmSolver {
             lambda: lambda as f64,
             gravity: Vec3::from_array(c.gravity),
             ground: c.ground,
+            max_grid_nodes: c.max_grid_nodes,
         }
     }
 
@@ -377,15 +383,18 @@ impl MpmSolver {
             .par_chunks_mut(CHUNK)
             .zip(self.chunks.par_iter_mut())
             .for_each(|(ps, cg)| p2g_chunk(ps, cg, &sp));
+        if let Some(nodes) = self.chunks.iter().find_map(|c| c.too_large) {
+            return Err(MpmError::GridTooLarge { nodes, max: self.config.max_grid_nodes });
+        }
 
         // Global grid = union of the chunk grids.
         let lo = self.chunks.iter().map(|c| c.lo).reduce(IVec3::min).unwrap();
         let hi = self.chunks.iter().map(|c| c.lo + c.dims).reduce(IVec3::max).unwrap();
-        let dims = hi - lo;
-        let nodes = dims.as_i64vec3().element_product().max(0) as usize;
+        let nodes = grid_nodes(lo, hi, 0);
         if nodes > self.config.max_grid_nodes {
             return Err(MpmError::GridTooLarge { nodes, max: self.config.max_grid_nodes });
         }
+        let dims = hi - lo;
         self.grid.resize(nodes, Vec4::ZERO);
         (self.grid_lo, self.grid_dims) = (lo, dims);
         let layer = (dims.x * dims.y) as usize;
@@ -403,8 +412,12 @@ impl MpmSolver {
 
         // 3. G2P.
         let (grid, grid_lo) = (&self.grid, self.grid_lo);
-        self.particles.par_chunks_mut(CHUNK).for_each(|ps| g2p_chunk(ps, grid, grid_lo, dims, &sp));
-        Ok(())
+        let diverged: Option<u32> =
+            self.particles.par_chunks_mut(CHUNK).map(|ps| g2p_chunk(ps, grid, grid_lo, dims, &sp)).reduce(|| None, Option::or);
+        match diverged {
+            Some(id) => Err(MpmError::Diverged { index: id as usize }),
+            None => Ok(()),
+        }
     }
 }
 
@@ -450,6 +463,14 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
         let tau = 2.0 * sp.mu * (f - r) * f.transpose() + DMat3::from_diagonal(DVec3::splat(sp.lambda * j * (j - 1.0)));
         cg.affine.push((tau * sp.stress_scale).as_mat3() + sp.p_mass * p.c);
     }
+    // Checked in i64 before anything is allocated: a particle flung far away (or a NaN, which
+    // floors to 0 next to huge coordinates) must give an error, not an abort.
+    let nodes = grid_nodes(lo, hi, 3);
+    if nodes > sp.max_grid_nodes {
+        cg.too_large = Some(nodes);
+        return;
+    }
+    cg.too_large = None;
     cg.lo = lo;
     cg.dims = hi - lo + IVec3::splat(3);
     let (nx, ny) = (cg.dims.x as usize, cg.dims.y as usize);
@@ -475,6 +496,12 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
             }
         }
     }
+}
+
+/// Nodes of the box `[lo, hi + pad)`, computed in `i64` (no overflow for any `i32` corners).
+fn grid_nodes(lo: IVec3, hi: IVec3, pad: i64) -> usize {
+    let d = (hi.as_i64vec3() - lo.as_i64vec3() + pad).max(glam::I64Vec3::ZERO);
+    d.x.saturating_mul(d.y).saturating_mul(d.z) as usize
 }
 
 /// Adds the part of one chunk grid that lies in global layer `gz`.
@@ -509,9 +536,11 @@ fn grid_update_layer(layer: &mut [Vec4], gz: i32, sp: &StepParams) {
     }
 }
 
-/// G2P for one chunk: gather velocity and APIC matrix, advect.
+/// G2P for one chunk: gather velocity and APIC matrix, advect. Returns the input index of the
+/// first particle whose new position is not finite, if any.
 #[allow(clippy::needless_range_loop)] // i, j, k are node offsets as well as weight indices
-fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &StepParams) {
+fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &StepParams) -> Option<u32> {
+    let mut diverged = None;
     let (nx, ny) = (dims.x as usize, dims.y as usize);
     for p in ps.iter_mut() {
         let (base, fx) = stencil(p.x, sp.inv_dx);
@@ -537,7 +566,11 @@ fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &St
         p.v = v.truncate();
         p.c = (4.0 * sp.inv_dx) * Mat3::from_cols(cx.truncate(), cy.truncate(), cz.truncate());
         p.x += sp.dt * p.v;
+        if diverged.is_none() && !p.x.is_finite() {
+            diverged = Some(p.id);
+        }
     }
+    diverged
 }
 
 /// Rotation part `R` of `F = R S` (Müller et al. 2016): gradient ascent of `tr(RᵀF)` on the
@@ -637,6 +670,13 @@ mod tests {
         assert!((mu - 17857.14).abs() < 0.1 && (la - 71428.57).abs() < 0.1);
         assert!((c.density * c.particle_volume_m3() - 0.27127).abs() < 1e-4);
         assert!((c.substep_dt() - 4e-4).abs() < 1e-10);
+    }
+
+    #[test]
+    fn particles_spanning_too_large_a_region_give_an_error_not_an_abort() {
+        let far = [[0.0, 0.0, 0.0], [1e9, -1e9, 3e9]];
+        let mut solver = MpmSolver::new(MpmConfig::default(), &far).unwrap();
+        assert!(matches!(solver.step_frame(), Err(MpmError::GridTooLarge { .. })));
     }
 
     #[test]
