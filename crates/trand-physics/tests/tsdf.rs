@@ -100,3 +100,30 @@ fn integrate_rejects_a_depth_map_of_the_wrong_size() {
     assert!(vol.integrate(&cam, &[0.0; 10], 0.05, 1.0).is_err());
     assert!(TsdfVolume::new([0.0; 3], [0.0; 3], 0.01).is_err());
 }
+
+#[test]
+fn fusion_is_identical_for_one_and_many_threads_and_ignores_invalid_depth() {
+    let (c, r) = (DVec3::new(0.0, 0.0, 0.05), 0.04);
+    let k = Intrinsics::centered(120.0, 80, 80);
+    let cams = ring_views(c, 0.4, &[0.5], 5, k);
+    let fuse = |threads: usize| {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+            let mut vol = TsdfVolume::new([-0.06, -0.06, -0.01], [0.06, 0.06, 0.11], 0.004).unwrap();
+            for cam in &cams {
+                let mut depth = render_depth(cam, sphere_hit(c, r));
+                // Garbage pixels (NaN, negative, infinite) count as "no depth".
+                depth[0] = f32::NAN;
+                depth[1] = -1.0;
+                depth[2] = f32::INFINITY;
+                vol.integrate(cam, &depth, 0.02, 1.0).unwrap();
+            }
+            vol
+        })
+    };
+    let (one, many) = (fuse(1), fuse(3));
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(one.tsdf()), bits(many.tsdf()));
+    assert_eq!(bits(one.weights()), bits(many.weights()));
+    assert!(one.tsdf().iter().all(|v| v.is_finite()));
+    assert_eq!(one.extract_mesh(), many.extract_mesh());
+}
