@@ -490,8 +490,9 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
                 let mjk = mk + ay * j as f32;
                 let wjk = w[j].y * w[k].z;
                 let row = ((o.z as usize + k) * ny + o.y as usize + j) * nx + o.x as usize;
+                let nodes: &mut [Vec4; 3] = (&mut cg.nodes[row..row + 3]).try_into().unwrap();
                 for i in 0..3 {
-                    cg.nodes[row + i] += (w[i].x * wjk) * (mjk + ax * i as f32);
+                    nodes[i] += (w[i].x * wjk) * (mjk + ax * i as f32);
                 }
             }
         }
@@ -554,8 +555,9 @@ fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &St
                 let dy = j as f32 - fx.y;
                 let wjk = w[j].y * w[k].z;
                 let row = ((o.z as usize + k) * ny + o.y as usize + j) * nx + o.x as usize;
+                let nodes: &[Vec4; 3] = grid[row..row + 3].try_into().unwrap();
                 for i in 0..3 {
-                    let wv = (w[i].x * wjk) * grid[row + i];
+                    let wv = (w[i].x * wjk) * nodes[i];
                     v += wv;
                     cx += wv * (i as f32 - fx.x);
                     cy += wv * dy;
