@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
+use trand_train::{Adam, AdamParams, DensifyStats, TrainConfig, densify_and_prune};
 use trand_train::init::{InitConfig, SlabBounds, SlabBox, random_init};
 use trand_train::losses::object::{ObjectLossParams, object_aware_loss};
 use trand_train::losses::{dice, photometric};
@@ -73,5 +74,21 @@ fn main() {
     };
     time("random init 100k (kd-tree 3-NN scales)", 3, || {
         random_init(&init, &[], 0, num_obj).unwrap()
+    });
+    let surfels = random_init(&init, &[], 0, num_obj).unwrap();
+    let grads = surfels.zeros_like();
+    let mut params = surfels.clone();
+    let mut adam = Adam::new(&params, AdamParams::default());
+    let lr = TrainConfig::default().learning_rates(1, 1.0);
+    time("adam step, 100k surfels (SH 0, 15 objects)", 10, || adam.step(&mut params, &grads, &lr));
+    let radii = vec![1.0f32; surfels.len()];
+    let g2d: Vec<[f32; 2]> = (0..surfels.len()).map(|i| [if i % 3 == 0 { 1e-3 } else { 0.0 }, 0.0]).collect();
+    time("densify_and_prune, 100k surfels, 1/3 above threshold", 3, || {
+        let mut s = surfels.clone();
+        let mut a = Adam::new(&s, AdamParams::default());
+        let mut st = DensifyStats::new(s.len());
+        st.add(&radii, &g2d);
+        let cfg = TrainConfig::default();
+        densify_and_prune(&mut s, &mut a, &mut st, &cfg.densify, 1.0, Some(20.0), &mut Pcg64::seed_from_u64(0))
     });
 }

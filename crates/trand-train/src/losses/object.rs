@@ -107,6 +107,18 @@ pub struct ObjectLoss<R> {
     pub objects_per_level: Vec<usize>,
 }
 
+impl<R: Real> ObjectLoss<R> {
+    /// Adds `weight · grad` to a position gradient (e.g. `grads.means` of the whole step).
+    pub fn add_scaled_to(&self, means_grad: &mut [[R; 3]], weight: R) {
+        assert_eq!(means_grad.len(), self.grad.len(), "position gradient length");
+        for (o, g) in means_grad.iter_mut().zip(&self.grad) {
+            for k in 0..3 {
+                o[k] += weight * g[k];
+            }
+        }
+    }
+}
+
 #[inline]
 fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
     let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
