@@ -19,7 +19,8 @@
 //! 4. if `cfg.densify.densify_now(it)`: [`densify_and_prune`] with `cfg.densify.size_threshold(it)`;
 //!    then if `cfg.densify.reset_opacity_now(it)`: [`reset_opacity`];
 //! 5. `adam.step(...)`, unless it is the last iteration or densification replaced the surfels this
-//!    iteration (the gradient rows no longer match; the reference's step updates nothing then).
+//!    iteration (the gradient rows no longer match; the reference's step updates nothing then). After an
+//!    opacity reset without densification, step every group but the opacity ([`Adam::step_groups`]).
 
 pub mod config;
 pub mod densify;
