@@ -22,6 +22,9 @@
 //! vanishes because the deviations sum to zero). Centres are members, so they receive gradient through
 //! both terms. A zero distance (the centre as its own neighbour) has zero gradient, as in PyTorch.
 //!
+//! Cost: one FPS run per object serves every level (each prefix of an FPS sequence is the FPS of that
+//! length), and kNN scans the object's contiguous member positions keeping a sorted list of the K best.
+//!
 //! The discrete choices (members, FPS centres, neighbour lists, nearest other centre) are made once by
 //! [`select`] and then held fixed by [`evaluate`], which is what the finite-difference tests perturb.
 
