@@ -2,3 +2,4 @@
 pub mod eval;
 pub mod info;
 pub mod reconstruct;
+pub mod update;
