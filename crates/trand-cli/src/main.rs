@@ -17,6 +17,8 @@ struct Cli {
 enum Command {
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// Generate a synthetic transparent-object sequence with exact ground truth.
+    Synth(cmd::synth::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -27,6 +29,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(a),
+        Command::Synth(a) => cmd::synth::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
