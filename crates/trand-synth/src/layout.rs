@@ -8,7 +8,7 @@
 //! [`DROP_GAP_M`] above its support and is settled by [`crate::physics`].
 
 use crate::material::{Material, Texture};
-use crate::physics::{CERAMIC_DENSITY, GLASS_DENSITY, Pose};
+use crate::physics::{CERAMIC_DENSITY, GLASS_DENSITY, Plate, Pose};
 use crate::scene::{AreaLight, Background, Environment, Table};
 use crate::shapes::{Model, ShapeKind, build};
 use glam::Quat;
@@ -18,7 +18,7 @@ use serde::Serialize;
 /// Gap between footprints of neighbouring objects at placement (m).
 pub const CLEARANCE_M: f32 = 0.012;
 /// Objects start this far above what they will rest on (m): short drops settle fast.
-pub const DROP_GAP_M: f32 = 0.002;
+pub const DROP_GAP_M: f32 = 0.0005;
 /// Radius of the disc the non-stacked objects are placed in (m).
 pub const PLACEMENT_RADIUS_M: f32 = 0.17;
 /// Probability that a non-stacked object is glass (the rest are glazed, opaque).
@@ -41,6 +41,8 @@ pub struct ObjectSpec {
     pub material: Material,
     pub mass_kg: f32,
     pub orientation: Orientation,
+    /// Support plate for the physics (set on the object others are stacked on).
+    pub plate: Plate,
 }
 
 /// The composed scene before physics.
@@ -99,7 +101,7 @@ fn make_object(id: u32, kind: ShapeKind, material: Material, orientation: Orient
     let model = build(kind, rng, slices);
     let density = if material.is_transparent() { GLASS_DENSITY } else { CERAMIC_DENSITY };
     let mass_kg = model.mesh.volume() * density;
-    ObjectSpec { id, model, material, mass_kg, orientation }
+    ObjectSpec { id, model, material, mass_kg, orientation, plate: Plate::None }
 }
 
 /// Rotation of an object: yaw about z, flipped about x when inverted.
@@ -129,6 +131,7 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
     let mut objects = Vec::new();
     let g = glass(rng);
     objects.push(make_object(1, support_kind, g, Orientation::Inverted, rng, slices));
+    objects[0].plate = Plate::OnModelBase;
     let g = glass(rng);
     objects.push(make_object(2, top_kind, g, Orientation::Upright, rng, slices));
     let others = [ShapeKind::Tumbler, ShapeKind::WineGlass, ShapeKind::Bottle, ShapeKind::Bowl, ShapeKind::Mug, ShapeKind::Sphere];
@@ -137,6 +140,9 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
         let material = if rng.random_bool(GLASS_PROBABILITY) { glass(rng) } else { glazed(rng) };
         let orientation = if matches!(kind, ShapeKind::Tumbler | ShapeKind::Bowl) && rng.random_bool(0.25) { Orientation::Inverted } else { Orientation::Upright };
         objects.push(make_object(id, kind, material, orientation, rng, slices));
+        if orientation == Orientation::Inverted {
+            objects.last_mut().expect("just pushed").plate = Plate::OnModelBase;
+        }
     }
 
     // Stack near the middle; its small lateral offset makes the top object fall sideways later.

@@ -45,6 +45,17 @@ pub const MIN_OBJECTS: u32 = 2;
 pub const MAX_OBJECTS: u32 = 6;
 /// Largest accepted image side (16-bit PNG and memory sanity).
 pub const MAX_IMAGE_SIDE: u32 = 8192;
+/// Largest tilt of the supported object against its support's axis that [`seat_on_support`]
+/// corrects; beyond it the object is leaning or falling and keeps its simulated pose.
+pub const SEAT_MAX_TILT_DEG: f32 = 6.0;
+/// Gap left between a seated object and its support (m): keeps the two glass surfaces from
+/// coinciding (which would make the first hit ambiguous) while far below a pixel.
+pub const SEAT_GAP_M: f32 = 5e-5;
+/// (linear, angular) damping while the supported object settles onto its fixed support: only
+/// its rest pose matters there, and strong damping stops tall glasses rocking on the contact.
+pub const SETTLE_ONTO_DAMPING: (f32, f32) = (5.0, 20.0);
+/// Bounding boxes closer than this count as touching when deciding what the removal disturbs (m).
+pub const TOUCH_MARGIN_M: f32 = 0.002;
 /// Layouts tried until the stacked pair really rests on each other after settling.
 pub const MAX_LAYOUT_ATTEMPTS: u32 = 6;
 
@@ -193,6 +204,55 @@ fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
     }
 }
 
+/// t = 0 settling in two phases: everything but the supported object first; then the supported
+/// object alone onto the (now fixed) settled scene. A resting support does not move anyway, and
+/// a static support gives the stiff, creep-free contact that a dynamic one lacks in rapier.
+fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, physics::SettleStats) {
+    let top = layout.stack.1;
+    fn spec(o: &layout::ObjectSpec) -> BodySpec<'_> {
+        BodySpec { hull_points: &o.model.hull_points, mass_kg: o.mass_kg, plate: o.plate }
+    }
+    let rest_idx: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != top).collect();
+    let specs: Vec<BodySpec> = rest_idx.iter().map(|&i| spec(&layout.objects[i])).collect();
+    let start: Vec<Pose> = rest_idx.iter().map(|&i| layout.start[i]).collect();
+    let (phase_a, stats_a) = physics::settle(&specs, &start, &vec![physics::Wake::Awake; specs.len()], params);
+    // The supported object keeps its height above its support's settled pose.
+    let mut poses = layout.start.clone();
+    for (k, &i) in rest_idx.iter().enumerate() {
+        poses[i] = phase_a[k];
+    }
+    let support = layout.stack.0;
+    let lift = poses[support].translation - layout.start[support].translation;
+    poses[top].translation += lift;
+    let specs: Vec<BodySpec> = layout.objects.iter().map(spec).collect();
+    let wake: Vec<physics::Wake> = (0..specs.len()).map(|i| if i == top { physics::Wake::Awake } else { physics::Wake::Fixed }).collect();
+    let (mut rest, stats_b) = physics::settle(&specs, &poses, &wake, &PhysicsParams { linear_damping: SETTLE_ONTO_DAMPING.0, angular_damping: SETTLE_ONTO_DAMPING.1, ..*params });
+    seat_on_support(layout, &mut rest);
+    let steps = stats_a.steps + stats_b.steps;
+    (rest, physics::SettleStats { steps, seconds: steps as f32 * params.dt, converged: stats_a.converged && stats_b.converged })
+}
+
+/// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
+/// degree or two (see [`settle_stack`]); when it came to rest on its support within
+/// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned to stand exactly along that axis
+/// (yaw and position kept) and lowered or raised so that its base is [`SEAT_GAP_M`] above the
+/// support's top. The glasses then neither float on one side nor intersect.
+fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) {
+    let (s, t) = layout.stack;
+    let axis_s = rest[s].rotation * glam::Vec3::Z;
+    let up = if axis_s.z >= 0.0 { axis_s } else { -axis_s };
+    let axis_t = rest[t].rotation * glam::Vec3::Z;
+    if axis_t.angle_between(up).to_degrees() > SEAT_MAX_TILT_DEG {
+        return;
+    }
+    let fix = glam::Quat::from_rotation_arc(axis_t, up);
+    // Rotate about the centre of the object's base so its footprint stays where it landed.
+    rest[t].rotation = (fix * rest[t].rotation).normalize();
+    let top_of_support = layout.objects[s].model.mesh.positions.iter().map(|p| rest[s].apply(*p).dot(up)).fold(f32::MIN, f32::max);
+    let base_of_top = layout.objects[t].model.mesh.positions.iter().map(|p| rest[t].apply(*p).dot(up)).fold(f32::MAX, f32::min);
+    rest[t].translation += (top_of_support + SEAT_GAP_M - base_of_top) * up;
+}
+
 fn pose_info(p: &Pose) -> PoseInfo {
     let r = bop_writer::pose_rotation(p).transpose().to_cols_array();
     PoseInfo { r_m2w: r.map(|v| (v * 1e9).round() / 1e9), t_m2w_mm: (p.translation.as_dvec3() * 1000.0).to_array().map(|v| (v * 1e4).round() / 1e4) }
@@ -207,8 +267,7 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let mut attempts = Vec::new();
     let (layout, rest0, stats0, relation) = loop {
         let layout = layout::sample(&mut rng, config.objects, config.lathe_slices);
-        let specs: Vec<BodySpec> = layout.objects.iter().map(|o| BodySpec { hull_points: &o.model.mesh.positions, mass_kg: o.mass_kg }).collect();
-        let (rest, stats) = physics::settle(&specs, &layout.start, &params);
+        let (rest, stats) = settle_stack(&layout, &params);
         let rel = check_stack(&layout, &rest);
         let done = rel.verified || attempts.len() as u32 + 1 >= MAX_LAYOUT_ATTEMPTS;
         attempts.push(rel.clone());
@@ -229,9 +288,22 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             .unwrap_or(0)
     };
     let keep: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != removed).collect();
-    let specs: Vec<BodySpec> = keep.iter().map(|&i| BodySpec { hull_points: &layout.objects[i].model.mesh.positions, mass_kg: layout.objects[i].mass_kg }).collect();
+    let specs: Vec<BodySpec> = keep.iter().map(|&i| BodySpec { hull_points: &layout.objects[i].model.hull_points, mass_kg: layout.objects[i].mass_kg, plate: layout.objects[i].plate }).collect();
     let start1: Vec<Pose> = keep.iter().map(|&i| rest0[i]).collect();
-    let (mut rest1, stats1) = physics::settle(&specs, &start1, &params);
+    // Objects touching the removed one (world boxes within TOUCH_MARGIN_M) start awake.
+    let world_box = |i: usize| {
+        layout.objects[i].model.hull_points.iter().map(|p| rest0[i].apply(*p)).fold((glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(p), hi.max(p)))
+    };
+    let (rlo, rhi) = world_box(removed);
+    let wake: Vec<physics::Wake> = keep
+        .iter()
+        .map(|&i| {
+            let (lo, hi) = world_box(i);
+            let touches = (lo - TOUCH_MARGIN_M).cmple(rhi).all() && (rlo - TOUCH_MARGIN_M).cmple(hi).all();
+            if touches { physics::Wake::Awake } else { physics::Wake::Asleep }
+        })
+        .collect();
+    let (mut rest1, stats1) = physics::settle(&specs, &start1, &wake, &params);
     let mut displacement = BTreeMap::new();
     let mut snapped = Vec::new();
     for (k, &i) in keep.iter().enumerate() {

@@ -189,6 +189,86 @@ pub struct Model {
     pub params: Vec<(&'static str, f32)>,
     /// Whether an upside-down copy has a flat top that another object can stand on.
     pub stackable_when_inverted: bool,
+    /// Points whose convex hull is the collision shape (same frame as `mesh`), see
+    /// [`collision_points`].
+    pub hull_points: Vec<Vec3>,
+}
+
+/// Angular samples of the collision hull. Few, clean hull vertices keep rapier's contact
+/// manifolds stable: hulls of the full render mesh (thousands of nearly coplanar points) made
+/// resting glasses creep across the table.
+pub const HULL_SLICES: u32 = 24;
+/// Profile-hull vertices closer than this to the line through their neighbours are dropped
+/// (metres). Rims and rounded base corners otherwise leave rings of points within 0.1 mm of the
+/// resting face, whose sliver faces jitter the contact normal and make objects walk.
+pub const HULL_SIMPLIFY_M: f32 = 3e-4;
+
+/// Removes polygon vertices within `tol` of the chord between their neighbours, repeatedly
+/// (closed polygon, counter-clockwise).
+fn simplify_closed(mut poly: Vec<Vec2>, tol: f32) -> Vec<Vec2> {
+    loop {
+        let n = poly.len();
+        if n <= 3 {
+            return poly;
+        }
+        let flattest = (0..n)
+            .map(|i| {
+                let (a, p, b) = (poly[(i + n - 1) % n], poly[i], poly[(i + 1) % n]);
+                let ab = b - a;
+                (i, (p - a).perp_dot(ab).abs() / ab.length().max(1e-12))
+            })
+            .min_by(|x, y| x.1.total_cmp(&y.1))
+            .expect("n > 3");
+        if flattest.1 >= tol {
+            return poly;
+        }
+        poly.remove(flattest.0);
+    }
+}
+
+/// 2D convex hull (Andrew's monotone chain), counter-clockwise.
+fn hull_2d(mut pts: Vec<Vec2>) -> Vec<Vec2> {
+    pts.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+    pts.dedup();
+    if pts.len() < 3 {
+        return pts;
+    }
+    let cross = |o: Vec2, a: Vec2, b: Vec2| (a - o).perp_dot(b - o);
+    let mut h: Vec<Vec2> = Vec::with_capacity(2 * pts.len());
+    for pass in 0..2 {
+        let start = h.len();
+        let iter: Box<dyn Iterator<Item = &Vec2>> = if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
+        for &p in iter {
+            while h.len() >= start + 2 && cross(h[h.len() - 2], h[h.len() - 1], p) <= 1e-12 {
+                h.pop();
+            }
+            h.push(p);
+        }
+        h.pop();
+    }
+    h
+}
+
+/// Collision points of a lathed profile: the 2D hull of the profile (together with its mirror
+/// image across the axis, so the hull is that of the solid of revolution), revolved with
+/// [`HULL_SLICES`] samples, plus every 4th point of any extra part (the mug handle).
+pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
+    let mirrored: Vec<Vec2> = profile.iter().flat_map(|p| [*p, Vec2::new(-p.x, p.y)]).collect();
+    let mut pts = Vec::new();
+    for q in simplify_closed(hull_2d(mirrored), HULL_SIMPLIFY_M).into_iter().filter(|q| q.x >= 0.0) {
+        if q.x < 1e-9 {
+            pts.push(Vec3::new(0.0, 0.0, q.y));
+            continue;
+        }
+        for k in 0..HULL_SLICES {
+            let phi = TAU * k as f32 / HULL_SLICES as f32;
+            pts.push(Vec3::new(q.x * phi.cos(), q.x * phi.sin(), q.y));
+        }
+    }
+    if let Some(e) = extra {
+        pts.extend(e.positions.iter().step_by(4));
+    }
+    pts
 }
 
 /// Samples a model of `kind` with random proportions (lengths in metres, like real glassware).
@@ -244,12 +324,16 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
         }
     };
     let mut mesh = lathe(&profile, slices);
+    let mut hull_points = collision_points(&profile, extra.as_ref());
     if let Some(h) = extra {
         mesh.append(&h);
     }
-    mesh.center_on_bounds();
+    let shift = mesh.center_on_bounds();
+    for p in &mut hull_points {
+        *p += shift;
+    }
     params.push(("volume_m3", mesh.volume()));
-    Model { kind, mesh, params, stackable_when_inverted: stackable }
+    Model { kind, mesh, params, stackable_when_inverted: stackable, hull_points }
 }
 
 fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static str, f32)>, Option<Mesh>, bool) {
