@@ -62,7 +62,7 @@ pub const MAX_LAYOUT_ATTEMPTS: u32 = 6;
 /// Named settings bundles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preset {
-    /// 640×480, 4 objects, 30 test views per state, 6 samples per pixel.
+    /// 640×480, 4 objects, 30 test views per state, 4 samples per pixel.
     Default,
     /// 160×120, 3 objects, 3 test views per state, 2 samples per pixel: for tests (seconds).
     Tiny,
@@ -101,7 +101,7 @@ pub struct SynthConfig {
 impl SynthConfig {
     pub fn new(preset: Preset, seed: u64, out: impl Into<PathBuf>) -> Self {
         let (width, height, objects, test_views, samples_per_pixel, lathe_slices) = match preset {
-            Preset::Default => (640, 480, 4, 30, 6, 72),
+            Preset::Default => (640, 480, 4, 30, 4, 72),
             Preset::Tiny => (160, 120, 3, 3, 2, 32),
         };
         Self { seed, out: out.into(), width, height, objects, test_views, samples_per_pixel, lathe_slices, existing: ExistingOutput::Refuse, progress: Progress::Hidden }
