@@ -29,6 +29,33 @@ pub enum Background {
     Wall { color: [f32; 3] },
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lambert_polygon_irradiance_matches_numerical_integration() {
+        let light = AreaLight { centre_m: [0.1, -0.2, 1.0], half_size_m: 0.3, radiance: 2.0 };
+        for (p, n) in [(Vec3::ZERO, Vec3::Z), (Vec3::new(0.3, 0.1, 0.05), Vec3::new(0.3, 0.0, 1.0).normalize())] {
+            // Midpoint rule over the light: E = ∫ L cosθ_s cosθ_l / r² dA.
+            let k = 400;
+            let mut e = 0.0f64;
+            for i in 0..k {
+                for j in 0..k {
+                    let q = light.point((i as f32 + 0.5) / k as f32, (j as f32 + 0.5) / k as f32);
+                    let w = q - p;
+                    let r2 = w.length_squared() as f64;
+                    let w = w.normalize();
+                    e += (light.radiance as f64) * (n.dot(w) as f64).max(0.0) * (w.z as f64) / r2;
+                }
+            }
+            e *= light.area() as f64 / (k * k) as f64;
+            let got = light.irradiance(p, n) as f64;
+            assert!((got - e).abs() / e < 1e-3, "{got} vs {e}");
+        }
+    }
+}
+
 impl Background {
     pub fn radiance(&self, d: Vec3) -> Vec3 {
         match *self {
@@ -54,6 +81,27 @@ impl AreaLight {
     /// Point on the light for the unit-square sample `(a, b)`.
     pub fn point(&self, a: f32, b: f32) -> Vec3 {
         Vec3::from(self.centre_m) + self.half_size_m * Vec3::new(2.0 * a - 1.0, 2.0 * b - 1.0, 0.0)
+    }
+
+    /// Corners, counter-clockwise seen from above (the order Lambert's formula below expects).
+    pub fn corners(&self) -> [Vec3; 4] {
+        [self.point(0.0, 0.0), self.point(1.0, 0.0), self.point(1.0, 1.0), self.point(0.0, 1.0)]
+    }
+
+    /// Unoccluded irradiance at `p` with normal `n` from the whole light, by Lambert's formula
+    /// for a polygonal luminaire of uniform radiance `L`:
+    /// `E = (L/2) Σᵢ Θᵢ (n · Γᵢ)`, with `uᵢ` the unit directions from `p` to the corners,
+    /// `Θᵢ = acos(uᵢ · uᵢ₊₁)` and `Γᵢ = normalize(uᵢ × uᵢ₊₁)`. Exact while the light is above the
+    /// surface's horizon (always for the table); clamped at 0 otherwise.
+    pub fn irradiance(&self, p: Vec3, n: Vec3) -> f32 {
+        let u = self.corners().map(|c| (c - p).normalize());
+        let mut sum = 0.0;
+        for i in 0..4 {
+            let (a, b) = (u[i], u[(i + 1) % 4]);
+            let theta = a.dot(b).clamp(-1.0, 1.0).acos();
+            sum += theta * n.dot(a.cross(b).normalize_or_zero());
+        }
+        (0.5 * self.radiance * sum).max(0.0)
     }
 
     /// Distance at which the ray meets the emitting (lower) face, if it does.

@@ -4,10 +4,11 @@
 //! glass surface the ray splits deterministically into a Fresnel-weighted reflection and a
 //! refraction (`L = R·L_r + (1 − R)·L_t`, see [`crate::material`]); past the critical angle only
 //! the reflection is followed. Light travelling inside glass is attenuated by Beer–Lambert
-//! absorption over the segment length. Diffuse surfaces (table, glazed objects) get direct light
-//! from one stratified sample of the area light, `E = L_e A cosθ_s cosθ_l / r²`, times
-//! `albedo/π`, with a shadow ray that passes through glass (attenuated by a per-interface loss and
-//! the glass tint, no caustics) and stops at opaque objects; plus a uniform ambient term. Branches
+//! absorption over the segment length. Diffuse surfaces (table, glazed objects) get direct light:
+//! the area light's exact irradiance (Lambert's polygon formula) times the visibility of one
+//! stratified light point, times `albedo/π`; the shadow ray passes through glass (attenuated by a
+//! per-interface loss and the glass tint, no caustics) and stops at opaque objects; plus a uniform
+//! ambient term. Branches
 //! whose weight falls under [`MIN_WEIGHT`] or deeper than [`MAX_DEPTH`] are cut.
 //!
 //! **Ground truth.** One ray through each pixel centre (integer pixel coordinates): depth is the
@@ -108,7 +109,7 @@ impl RenderScene {
     }
 
     /// Radiance arriving along `-d` at `o`; `weight` is this branch's share of the pixel.
-    fn radiance(&self, o: Vec3, d: Vec3, depth: u32, weight: f32, rng: &mut rand_pcg::Pcg32) -> Vec3 {
+    fn radiance(&self, o: Vec3, d: Vec3, depth: u32, weight: f32, rng: &mut Sampler) -> Vec3 {
         let env = &self.env;
         let hit = self.intersect(o, d, f32::INFINITY);
         let light_t = env.light.hit(o, d);
@@ -145,7 +146,7 @@ impl RenderScene {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn glass(&self, h: &SurfaceHit, d: Vec3, ior: f32, tint: [f32; 3], depth: u32, weight: f32, rng: &mut rand_pcg::Pcg32) -> Vec3 {
+    fn glass(&self, h: &SurfaceHit, d: Vec3, ior: f32, tint: [f32; 3], depth: u32, weight: f32, rng: &mut Sampler) -> Vec3 {
         let entering = d.dot(h.geo_normal) < 0.0;
         let (n, geo, n1, n2) = if entering { (h.shading_normal, h.geo_normal, 1.0, ior) } else { (-h.shading_normal, -h.geo_normal, ior, 1.0) };
         // Shading normals can face away from the ray near silhouettes; fall back to the flat one.
@@ -166,22 +167,23 @@ impl RenderScene {
         if entering { l } else { l * absorption(tint, h.t) }
     }
 
-    /// Irradiance factor at a diffuse point: one light sample with a glass-aware shadow ray,
-    /// `E/π`, plus the ambient term (so that `albedo × this` is the outgoing radiance).
-    fn diffuse_irradiance(&self, p: Vec3, n: Vec3, rng: &mut rand_pcg::Pcg32) -> Vec3 {
+    /// Irradiance factor at a diffuse point, so that `albedo × this` is the outgoing radiance:
+    /// the light's exact unoccluded irradiance (Lambert's polygon formula, see
+    /// [`crate::scene::AreaLight::irradiance`]) times the visibility of one stratified point of
+    /// the light (glass-aware shadow ray), over `π`, plus the ambient term. Unshadowed surfaces
+    /// are therefore noise-free; only penumbrae are sampled.
+    fn diffuse_irradiance(&self, p: Vec3, n: Vec3, rng: &mut Sampler) -> Vec3 {
         let light = &self.env.light;
-        let q = light.point(rng.random::<f32>(), rng.random::<f32>());
-        let to = q - p;
-        let dist2 = to.length_squared();
-        let w = to / dist2.sqrt();
-        let cos_s = n.dot(w);
-        let cos_l = w.z; // the light faces −z
         let ambient = Vec3::splat(self.env.ambient * (0.6 + 0.4 * n.z));
-        if cos_s <= 0.0 || cos_l <= 0.0 {
+        let e = light.irradiance(p, n);
+        if e <= 0.0 {
             return ambient;
         }
-        let vis = self.transmittance(p + RAY_EPS * n, w, dist2.sqrt());
-        ambient + vis * (light.radiance * light.area() * cos_s * cos_l / dist2 / PI)
+        let (a, b) = rng.light_uv();
+        let to = light.point(a, b) - p;
+        let dist = to.length();
+        let vis = self.transmittance(p + RAY_EPS * n, to / dist, dist);
+        ambient + vis * (e / PI)
     }
 
     /// Fraction of light reaching `o` from distance `len` along `w`: zero behind opaque objects,
@@ -258,6 +260,36 @@ impl RenderScene {
     }
 }
 
+/// Per-pixel random numbers with stratification: with `n²` samples per pixel, sample `i` takes
+/// pixel-footprint stratum `(i mod n, i div n)` and a different (shifted) light stratum, so both
+/// the anti-aliasing and the soft shadows are stratified (less noise than independent samples).
+pub struct Sampler {
+    rng: rand_pcg::Pcg32,
+    light_stratum: (f32, f32),
+    inv_n: f32,
+}
+
+impl Sampler {
+    fn new(seed: u64) -> Self {
+        Self { rng: rand_pcg::Pcg32::seed_from_u64(seed), light_stratum: (0.0, 0.0), inv_n: 1.0 }
+    }
+
+    /// Starts sample `i` of `n²`; returns its jitter in the pixel, in `[−½, ½)²`.
+    fn start_sample(&mut self, i: u32, n: u32) -> (f64, f64) {
+        let (sx, sy) = (i % n, i / n);
+        self.inv_n = 1.0 / n as f32;
+        self.light_stratum = (((sx + sy) % n) as f32, sx as f32);
+        let inv = 1.0 / n as f64;
+        ((sx as f64 + self.rng.random::<f64>()) * inv - 0.5, (sy as f64 + self.rng.random::<f64>()) * inv - 0.5)
+    }
+
+    /// A point of the unit square for the light sample, inside this sample's light stratum.
+    fn light_uv(&mut self) -> (f32, f32) {
+        let (u, v) = (self.rng.random::<f32>(), self.rng.random::<f32>());
+        ((self.light_stratum.0 + u) * self.inv_n, (self.light_stratum.1 + v) * self.inv_n)
+    }
+}
+
 /// The shading normal flipped to the side the ray comes from.
 fn face_forward(n: Vec3, geo: Vec3, d: Vec3) -> Vec3 {
     let g = if d.dot(geo) < 0.0 { geo } else { -geo };
@@ -301,6 +333,7 @@ pub fn render_view(scene: &RenderScene, cam: &Camera, settings: RenderSettings, 
     let mut depth_mm = vec![0u16; w * h];
     let mut ids = vec![0u32; w * h];
     let spp = settings.samples_per_pixel.max(1);
+    let strata = (spp as f64).sqrt().round() as u32;
     rgb.par_chunks_mut(w * 3).zip(depth_mm.par_chunks_mut(w)).zip(ids.par_chunks_mut(w)).enumerate().for_each(|(y, ((rgb_row, depth_row), id_row))| {
         for x in 0..w {
             // Ground truth: one ray through the pixel centre.
@@ -313,10 +346,12 @@ pub fn render_view(scene: &RenderScene, cam: &Camera, settings: RenderSettings, 
                 };
             }
             // Colour: jittered samples over the pixel footprint.
-            let mut rng = rand_pcg::Pcg32::seed_from_u64(pixel_seed(view_seed, (y * w + x) as u64));
+            let mut rng = Sampler::new(pixel_seed(view_seed, (y * w + x) as u64));
             let mut sum = Vec3::ZERO;
-            for _ in 0..spp {
-                let (jx, jy) = (rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5);
+            for i in 0..spp {
+                // Stratified when spp is a square; otherwise plain random (one stratum).
+                let n = if strata * strata == spp { strata } else { 1 };
+                let (jx, jy) = rng.start_sample(i % (n * n), n);
                 let d = cam.ray_direction(x as f64 + jx, y as f64 + jy).as_vec3();
                 sum += scene.radiance(origin, d, 0, 1.0, &mut rng);
             }
