@@ -9,7 +9,7 @@
 //!
 //! Ray–triangle tests use the Möller–Trumbore algorithm (barycentrics from two cross products).
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 /// Centroid bins per axis for the SAH sweep: 12 is the usual quality/speed balance for binned
 /// builds (more bins barely change tree quality for meshes of this size).
@@ -56,29 +56,30 @@ impl Tri {
     }
 }
 
+/// Box with SIMD-friendly corners (`Vec3A`: the slab test runs on 4-wide lanes).
 #[derive(Clone, Copy, Debug)]
 struct Aabb {
-    lo: Vec3,
-    hi: Vec3,
+    lo: Vec3A,
+    hi: Vec3A,
 }
 
 impl Aabb {
-    const EMPTY: Aabb = Aabb { lo: Vec3::splat(f32::INFINITY), hi: Vec3::splat(f32::NEG_INFINITY) };
+    const EMPTY: Aabb = Aabb { lo: Vec3A::splat(f32::INFINITY), hi: Vec3A::splat(f32::NEG_INFINITY) };
     fn grow(&mut self, p: Vec3) {
-        self.lo = self.lo.min(p);
-        self.hi = self.hi.max(p);
+        self.lo = self.lo.min(p.into());
+        self.hi = self.hi.max(p.into());
     }
     fn merge(&mut self, o: &Aabb) {
         self.lo = self.lo.min(o.lo);
         self.hi = self.hi.max(o.hi);
     }
     fn area(&self) -> f32 {
-        let e = (self.hi - self.lo).max(Vec3::ZERO);
+        let e = (self.hi - self.lo).max(Vec3A::ZERO);
         2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
     }
     /// Slab test; returns the entry distance when the box is hit before `t_max`.
     #[inline]
-    fn hit(&self, o: Vec3, inv_d: Vec3, t_max: f32) -> Option<f32> {
+    fn hit(&self, o: Vec3A, inv_d: Vec3A, t_max: f32) -> Option<f32> {
         let t0 = (self.lo - o) * inv_d;
         let t1 = (self.hi - o) * inv_d;
         let tn = t0.min(t1).max_element().max(0.0);
@@ -121,7 +122,7 @@ impl Bvh {
             }
             b
         }).collect();
-        let centroids: Vec<Vec3> = bounds.iter().map(|b| 0.5 * (b.lo + b.hi)).collect();
+        let centroids: Vec<Vec3> = bounds.iter().map(|b| Vec3::from(0.5 * (b.lo + b.hi))).collect();
         let mut order: Vec<u32> = (0..tris.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * tris.len().max(1));
         if !tris.is_empty() {
@@ -148,13 +149,14 @@ impl Bvh {
         if self.nodes.is_empty() {
             return None;
         }
-        let inv_d = d.recip();
+        let inv_d = Vec3A::from(d.recip());
+        let oa = Vec3A::from(o);
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
         let mut node = 0u32;
-        if self.nodes[0].bounds.hit(o, inv_d, t_best).is_none() {
+        if self.nodes[0].bounds.hit(oa, inv_d, t_best).is_none() {
             return None;
         }
         loop {
@@ -168,8 +170,8 @@ impl Bvh {
                 }
             } else {
                 let (l, r) = (node + 1, n.start_or_right);
-                let hl = self.nodes[l as usize].bounds.hit(o, inv_d, t_best);
-                let hr = self.nodes[r as usize].bounds.hit(o, inv_d, t_best);
+                let hl = self.nodes[l as usize].bounds.hit(oa, inv_d, t_best);
+                let hr = self.nodes[r as usize].bounds.hit(oa, inv_d, t_best);
                 match (hl, hr) {
                     (Some(a), Some(b)) => {
                         let (near, far) = if a <= b { (l, r) } else { (r, l) };
@@ -196,7 +198,7 @@ impl Bvh {
                 }
                 sp -= 1;
                 node = stack[sp];
-                if self.nodes[node as usize].bounds.hit(o, inv_d, t_best).is_some() {
+                if self.nodes[node as usize].bounds.hit(oa, inv_d, t_best).is_some() {
                     break;
                 }
             }

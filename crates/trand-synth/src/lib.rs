@@ -54,8 +54,8 @@ pub const SEAT_GAP_M: f32 = 5e-5;
 /// (linear, angular) damping while the supported object settles onto its fixed support: only
 /// its rest pose matters there, and strong damping stops tall glasses rocking on the contact.
 pub const SETTLE_ONTO_DAMPING: (f32, f32) = (5.0, 20.0);
-/// Bounding boxes closer than this count as touching when deciding what the removal disturbs (m).
-pub const TOUCH_MARGIN_M: f32 = 0.002;
+/// Objects whose lowest point is below this height stand on the table (m).
+pub const ON_TABLE_M: f32 = 0.001;
 /// Layouts tried until the stacked pair really rests on each other after settling.
 pub const MAX_LAYOUT_ATTEMPTS: u32 = 6;
 
@@ -191,7 +191,7 @@ fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
     };
     let tilt = |i: usize| (rest[i].rotation * glam::Vec3::Z).z.abs().clamp(0.0, 1.0).acos().to_degrees();
     let min_z = world_z(t);
-    let all_on_table = (0..rest.len()).filter(|&i| i != t).all(|i| world_z(i) < 0.001 && rest[i].translation.truncate().length() < layout.env.table.half_size_m);
+    let all_on_table = (0..rest.len()).filter(|&i| i != t).all(|i| world_z(i) < ON_TABLE_M && rest[i].translation.truncate().length() < layout.env.table.half_size_m);
     let verified = all_on_table && min_z > 0.7 * height(s) && tilt(t) < 15.0 && tilt(s) < 5.0;
     Relation {
         kind: "stack",
@@ -207,7 +207,7 @@ fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
 /// t = 0 settling in two phases: everything but the supported object first; then the supported
 /// object alone onto the (now fixed) settled scene. A resting support does not move anyway, and
 /// a static support gives the stiff, creep-free contact that a dynamic one lacks in rapier.
-fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, physics::SettleStats) {
+fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, physics::SettleStats, Option<SeatCorrection>) {
     let top = layout.stack.1;
     fn spec(o: &layout::ObjectSpec) -> BodySpec<'_> {
         BodySpec { hull_points: &o.model.hull_points, mass_kg: o.mass_kg, plate: o.plate }
@@ -227,9 +227,9 @@ fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, 
     let specs: Vec<BodySpec> = layout.objects.iter().map(spec).collect();
     let wake: Vec<physics::Wake> = (0..specs.len()).map(|i| if i == top { physics::Wake::Awake } else { physics::Wake::Fixed }).collect();
     let (mut rest, stats_b) = physics::settle(&specs, &poses, &wake, &PhysicsParams { linear_damping: SETTLE_ONTO_DAMPING.0, angular_damping: SETTLE_ONTO_DAMPING.1, ..*params });
-    seat_on_support(layout, &mut rest);
+    let seat = seat_on_support(layout, &mut rest);
     let steps = stats_a.steps + stats_b.steps;
-    (rest, physics::SettleStats { steps, seconds: steps as f32 * params.dt, converged: stats_a.converged && stats_b.converged })
+    (rest, physics::SettleStats { steps, seconds: steps as f32 * params.dt, converged: stats_a.converged && stats_b.converged }, seat)
 }
 
 /// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
@@ -237,20 +237,23 @@ fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, 
 /// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned to stand exactly along that axis
 /// (yaw and position kept) and lowered or raised so that its base is [`SEAT_GAP_M`] above the
 /// support's top. The glasses then neither float on one side nor intersect.
-fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) {
+fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCorrection> {
     let (s, t) = layout.stack;
     let axis_s = rest[s].rotation * glam::Vec3::Z;
     let up = if axis_s.z >= 0.0 { axis_s } else { -axis_s };
     let axis_t = rest[t].rotation * glam::Vec3::Z;
-    if axis_t.angle_between(up).to_degrees() > SEAT_MAX_TILT_DEG {
-        return;
+    let tilt_deg = axis_t.angle_between(up).to_degrees();
+    if tilt_deg > SEAT_MAX_TILT_DEG {
+        return None;
     }
+    let before = rest[t].translation;
     let fix = glam::Quat::from_rotation_arc(axis_t, up);
     // Rotate about the centre of the object's base so its footprint stays where it landed.
     rest[t].rotation = (fix * rest[t].rotation).normalize();
     let top_of_support = layout.objects[s].model.mesh.positions.iter().map(|p| rest[s].apply(*p).dot(up)).fold(f32::MIN, f32::max);
     let base_of_top = layout.objects[t].model.mesh.positions.iter().map(|p| rest[t].apply(*p).dot(up)).fold(f32::MAX, f32::min);
     rest[t].translation += (top_of_support + SEAT_GAP_M - base_of_top) * up;
+    Some(SeatCorrection { tilt_deg, shift_mm: 1000.0 * rest[t].translation.distance(before) })
 }
 
 fn pose_info(p: &Pose) -> PoseInfo {
@@ -265,14 +268,14 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
 
     // 1-2. Layout and t = 0 settling, retried until the stack holds.
     let mut attempts = Vec::new();
-    let (layout, rest0, stats0, relation) = loop {
+    let (layout, rest0, stats0, relation, seat) = loop {
         let layout = layout::sample(&mut rng, config.objects, config.lathe_slices);
-        let (rest, stats) = settle_stack(&layout, &params);
+        let (rest, stats, seat) = settle_stack(&layout, &params);
         let rel = check_stack(&layout, &rest);
         let done = rel.verified || attempts.len() as u32 + 1 >= MAX_LAYOUT_ATTEMPTS;
         attempts.push(rel.clone());
         if done {
-            break (layout, rest, stats, rel);
+            break (layout, rest, stats, rel, seat);
         }
     };
     // t = 1: remove the support (or, if no stack held, the object closest to another one).
@@ -290,17 +293,14 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let keep: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != removed).collect();
     let specs: Vec<BodySpec> = keep.iter().map(|&i| BodySpec { hull_points: &layout.objects[i].model.hull_points, mass_kg: layout.objects[i].mass_kg, plate: layout.objects[i].plate }).collect();
     let start1: Vec<Pose> = keep.iter().map(|&i| rest0[i]).collect();
-    // Objects touching the removed one (world boxes within TOUCH_MARGIN_M) start awake.
-    let world_box = |i: usize| {
-        layout.objects[i].model.hull_points.iter().map(|p| rest0[i].apply(*p)).fold((glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(p), hi.max(p)))
-    };
-    let (rlo, rhi) = world_box(removed);
+    // Objects that rest on something other than the table (their lowest point is above
+    // ON_TABLE_M) may have lost their support: they start awake. Everything standing on the table
+    // starts asleep and only moves if something falling hits it.
     let wake: Vec<physics::Wake> = keep
         .iter()
         .map(|&i| {
-            let (lo, hi) = world_box(i);
-            let touches = (lo - TOUCH_MARGIN_M).cmple(rhi).all() && (rlo - TOUCH_MARGIN_M).cmple(hi).all();
-            if touches { physics::Wake::Awake } else { physics::Wake::Asleep }
+            let lowest = layout.objects[i].model.hull_points.iter().map(|p| rest0[i].apply(*p).z).fold(f32::MAX, f32::min);
+            if lowest > ON_TABLE_M { physics::Wake::Awake } else { physics::Wake::Asleep }
         })
         .collect();
     let (mut rest1, stats1) = physics::settle(&specs, &start1, &wake, &params);
@@ -446,6 +446,7 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             t1: stats1,
             layout_attempts: attempts,
             static_snapped_t1: snapped,
+            t0_seat_correction: seat,
         },
         render: RenderInfo {
             engine: "trand-synth Whitted ray tracer (Fresnel/Snell dielectrics, Beer-Lambert absorption, area-light shadows)",

@@ -114,6 +114,15 @@ pub struct PhysicsInfo {
     pub t1: SettleStats,
     pub layout_attempts: Vec<Relation>,
     pub static_snapped_t1: Vec<u32>,
+    /// Contact projection applied to the supported object at t = 0 (null if none).
+    pub t0_seat_correction: Option<SeatCorrection>,
+}
+
+/// How far the supported object was turned and moved to sit exactly on its support.
+#[derive(Clone, Copy, Serialize)]
+pub struct SeatCorrection {
+    pub tilt_deg: f32,
+    pub shift_mm: f32,
 }
 
 #[derive(Serialize)]

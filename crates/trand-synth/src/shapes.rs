@@ -187,8 +187,6 @@ pub struct Model {
     pub mesh: Mesh,
     /// Named dimensions in metres (reported in `sequence.json` as `params_m`).
     pub params: Vec<(&'static str, f32)>,
-    /// Whether an upside-down copy has a flat top that another object can stand on.
-    pub stackable_when_inverted: bool,
     /// Points whose convex hull is the collision shape (same frame as `mesh`), see
     /// [`collision_points`].
     pub hull_points: Vec<Vec3>,
@@ -274,13 +272,13 @@ pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
 /// Samples a model of `kind` with random proportions (lengths in metres, like real glassware).
 pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
     let mut u = |a: f32, b: f32| rng.random_range(a..b);
-    let (profile, mut params, extra, stackable) = match kind {
+    let (profile, mut params, extra) = match kind {
         ShapeKind::Tumbler => {
             let (rb, h, wall) = (u(0.026, 0.032), u(0.07, 0.095), u(0.0018, 0.003));
             let rt = rb + u(0.0, 0.006);
             let base = u(0.006, 0.011);
             let outer = straight_wall(rb, rt, h, 0.002, 6);
-            (shell(&outer, wall, base), vec![("R_bottom", rb), ("R_top", rt), ("height", h), ("wall", wall), ("base", base)], None, true)
+            (shell(&outer, wall, base), vec![("R_bottom", rb), ("R_top", rt), ("height", h), ("wall", wall), ("base", base)], None)
         }
         ShapeKind::Bowl => {
             let (rf, r, h, wall) = (u(0.022, 0.03), u(0.048, 0.06), u(0.035, 0.05), u(0.0025, 0.0035));
@@ -289,7 +287,7 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
                 let a = FRAC_PI_2 * i as f32 / 14.0;
                 outer.push(Vec2::new(rf + (r - rf) * a.sin(), h * (1.0 - a.cos())));
             }
-            (shell(&outer, wall, wall * 1.6), vec![("R_foot", rf), ("R_rim", r), ("height", h), ("wall", wall)], None, true)
+            (shell(&outer, wall, wall * 1.6), vec![("R_foot", rf), ("R_rim", r), ("height", h), ("wall", wall)], None)
         }
         ShapeKind::Bottle => {
             let (rb, rn, h, wall) = (u(0.024, 0.031), u(0.011, 0.014), u(0.12, 0.15), u(0.0018, 0.0026));
@@ -305,7 +303,7 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
                 outer.push(Vec2::new(rn, hb + sh + (h - hb - sh) * i as f32 / 4.0));
             }
             let base = u(0.004, 0.007);
-            (shell(&outer, wall, base), vec![("R_body", rb), ("R_neck", rn), ("height", h), ("wall", wall), ("base", base)], None, false)
+            (shell(&outer, wall, base), vec![("R_body", rb), ("R_neck", rn), ("height", h), ("wall", wall), ("base", base)], None)
         }
         ShapeKind::Mug => {
             let (r, h, wall) = (u(0.034, 0.042), u(0.08, 0.1), u(0.003, 0.0045));
@@ -313,14 +311,14 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
             let outer = straight_wall(r, r, h, 0.003, 6);
             let (tube, major) = (u(0.005, 0.007), h * 0.28);
             let handle = handle_tube(r - 0.5 * wall, h * 0.5, major, tube, slices);
-            (shell(&outer, wall, base), vec![("R", r), ("height", h), ("wall", wall), ("base", base), ("handle_tube", tube)], Some(handle), true)
+            (shell(&outer, wall, base), vec![("R", r), ("height", h), ("wall", wall), ("base", base), ("handle_tube", tube)], Some(handle))
         }
         ShapeKind::WineGlass => wine_glass(&mut u),
         ShapeKind::Sphere => {
             let r = u(0.025, 0.035);
             let mut p = vec![Vec2::new(0.0, -r)];
             arc(&mut p, Vec2::ZERO, r, -FRAC_PI_2, FRAC_PI_2, 24);
-            (p, vec![("R", r)], None, false)
+            (p, vec![("R", r)], None)
         }
     };
     let mut mesh = lathe(&profile, slices);
@@ -333,10 +331,10 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
         *p += shift;
     }
     params.push(("volume_m3", mesh.volume()));
-    Model { kind, mesh, params, stackable_when_inverted: stackable, hull_points }
+    Model { kind, mesh, params, hull_points }
 }
 
-fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static str, f32)>, Option<Mesh>, bool) {
+fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static str, f32)>, Option<Mesh>) {
     let (rf, rb, wall, stem) = (u(0.03, 0.036), u(0.03, 0.038), u(0.0015, 0.002), u(0.003, 0.005));
     let rrim = rb * u(0.8, 0.92);
     let ah = u(0.035, 0.045);
@@ -366,7 +364,7 @@ fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static 
         p.push(Vec2::new((rbi * a.cos()).max(0.0), zc + ahi * a.sin()));
     }
     let params = vec![("R_foot", rf), ("R_bowl", rb), ("R_rim", rrim), ("height", top), ("wall", wall), ("stem_radius", stem)];
-    (p, params, None, false)
+    (p, params, None)
 }
 
 /// A mug handle: a tube of radius `tube` along a half torus of radius `major` centred at height
