@@ -15,7 +15,7 @@ use glam::{Vec3, Vec3A};
 /// builds (more bins barely change tree quality for meshes of this size).
 pub const BINS: usize = 12;
 /// Leaves never hold more triangles than this (keeps worst-case leaf cost bounded).
-pub const MAX_LEAF: usize = 8;
+pub const MAX_LEAF: usize = 4;
 /// Cost of one traversal step relative to one triangle test (typical value for CPU tracers).
 pub const TRAVERSAL_COST: f32 = 1.0;
 
