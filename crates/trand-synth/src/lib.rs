@@ -234,8 +234,8 @@ fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, 
 
 /// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
 /// degree or two (see [`settle_stack`]); when it came to rest on its support within
-/// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned to stand exactly along that axis
-/// (yaw and position kept) and lowered or raised so that its base is [`SEAT_GAP_M`] above the
+/// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned about its centre to stand exactly
+/// along that axis (yaw kept) and moved along it so that its base is [`SEAT_GAP_M`] above the
 /// support's top. The glasses then neither float on one side nor intersect.
 fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCorrection> {
     let (s, t) = layout.stack;
@@ -248,7 +248,7 @@ fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCor
     }
     let before = rest[t].translation;
     let fix = glam::Quat::from_rotation_arc(axis_t, up);
-    // Rotate about the centre of the object's base so its footprint stays where it landed.
+    // Untilt about the object's centre (its translation is kept), then slide it along the axis.
     rest[t].rotation = (fix * rest[t].rotation).normalize();
     let top_of_support = layout.objects[s].model.mesh.positions.iter().map(|p| rest[s].apply(*p).dot(up)).fold(f32::MIN, f32::max);
     let base_of_top = layout.objects[t].model.mesh.positions.iter().map(|p| rest[t].apply(*p).dot(up)).fold(f32::MAX, f32::min);
