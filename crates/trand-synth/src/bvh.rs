@@ -156,9 +156,7 @@ impl Bvh {
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
         let mut node = 0u32;
-        if self.nodes[0].bounds.hit(oa, inv_d, t_best).is_none() {
-            return None;
-        }
+        self.nodes[0].bounds.hit(oa, inv_d, t_best)?;
         loop {
             let n = &self.nodes[node as usize];
             if n.count > 0 {
@@ -221,8 +219,7 @@ fn build_rec(nodes: &mut Vec<Node>, order: &mut [u32], start: usize, end: usize,
     }
     // Binned SAH over the three axes.
     let mut best: Option<(f32, usize, usize)> = None; // (cost, axis, split bin)
-    for axis in 0..3 {
-        let (lo, hi) = (cb.lo[axis], cb.hi[axis]);
+    for (axis, (lo, hi)) in cb.lo.to_array().into_iter().zip(cb.hi.to_array()).enumerate() {
         if hi - lo < 1e-9 {
             continue;
         }

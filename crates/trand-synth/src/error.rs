@@ -1,4 +1,5 @@
-//! Errors of the generator, each naming the field or file involved.
+//! Errors of the generator, each naming the field or file involved (the underlying I/O error
+//! is the `source`, printed by `{:#}` in the CLI).
 
 use std::path::PathBuf;
 
@@ -10,10 +11,12 @@ pub enum SynthError {
     OutputNotEmpty { path: PathBuf },
     #[error("output path {path} exists and is not a folder")]
     OutputNotADirectory { path: PathBuf },
-    #[error("cannot write {path}: {source}")]
+    #[error("cannot create the output next to {path} (is the parent folder writable?)")]
+    OutputUnwritable { path: PathBuf, source: std::io::Error },
+    #[error("cannot write {path}")]
     Io { path: PathBuf, source: std::io::Error },
-    #[error("cannot write PNG {path}: {source}")]
+    #[error("cannot write PNG {path}")]
     Png { path: PathBuf, source: image::ImageError },
-    #[error("cannot write JSON {path}: {source}")]
+    #[error("cannot write JSON {path}")]
     Json { path: PathBuf, source: serde_json::Error },
 }

@@ -14,6 +14,14 @@
 //! Output is written into a temporary sibling folder and renamed into place at the end, so an
 //! interrupted or failed run leaves no partial sequence. Everything is a pure function of the
 //! configuration (seed included): bytes do not depend on the thread count.
+//!
+//! ```no_run
+//! use trand_synth::{Preset, SynthConfig, generate};
+//! let config = SynthConfig::new(Preset::Tiny, 7, "/tmp/seq_tiny");
+//! let summary = generate(&config)?;
+//! println!("{} views, object {} removed", summary.views, summary.removed_obj_id);
+//! # Ok::<(), trand_synth::SynthError>(())
+//! ```
 
 pub mod bop_writer;
 pub mod bvh;
@@ -165,7 +173,7 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|source| SynthError::Io { path: tmp.clone(), source })?;
     }
-    std::fs::create_dir_all(&tmp).map_err(|source| SynthError::Io { path: tmp.clone(), source })?;
+    std::fs::create_dir_all(&tmp).map_err(|source| SynthError::OutputUnwritable { path: target.clone(), source })?;
     let result = generate_into(config, &tmp);
     let finish = result.and_then(|mut summary| {
         if target.exists() {

@@ -225,7 +225,7 @@ fn bad_settings_and_occupied_outputs_fail_with_a_named_reason_and_leave_nothing(
     // A folder below a regular file cannot be created.
     let file = dir.join("a_file");
     std::fs::write(&file, b"x").unwrap();
-    assert!(matches!(generate(&tiny(1, &file.join("seq"))), Err(SynthError::Io { .. })));
+    assert!(matches!(generate(&tiny(1, &file.join("seq"))), Err(SynthError::OutputUnwritable { .. })));
     // Non-empty output: refused without Replace, replaced with it.
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("keep.txt"), b"mine").unwrap();
