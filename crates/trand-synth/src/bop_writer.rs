@@ -189,9 +189,9 @@ pub struct ModelInfo {
 
 pub fn model_info(mesh: &Mesh) -> ModelInfo {
     let (lo, hi) = mesh.bounds();
-    // Diameter over the convex-hull candidates would be exact; the vertex set is small enough
-    // (a few thousand) for the O(n²) maximum on a subsample of every 4th vertex plus extremes.
-    let pts: Vec<DVec3> = mesh.positions.iter().step_by(4).map(|p| p.as_dvec3()).collect();
+    // Exact diameter (largest vertex–vertex distance) by the O(n²) scan: a few thousand
+    // vertices, a few milliseconds per model.
+    let pts: Vec<DVec3> = mesh.positions.iter().map(|p| p.as_dvec3()).collect();
     let mut diam = 0.0f64;
     for (i, a) in pts.iter().enumerate() {
         for b in &pts[i + 1..] {
