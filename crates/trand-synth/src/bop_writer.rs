@@ -60,10 +60,11 @@ impl<T: Serialize> Serialize for FrameMap<T> {
     }
 }
 
-/// Rounds to `digits` decimals (keeps the JSON readable, like the reference's 6 decimals).
-fn round(v: f64, digits: i32) -> f64 {
+/// Rounds to `digits` decimals (keeps the JSON readable, like the reference's 6 decimals);
+/// `-0.0` becomes `0.0`.
+pub fn round(v: f64, digits: i32) -> f64 {
     let s = 10f64.powi(digits);
-    (v * s).round() / s
+    (v * s).round() / s + 0.0
 }
 
 fn row_major(m: DMat3) -> [f64; 9] {
@@ -145,11 +146,12 @@ pub fn write_view(split: &Path, frame: u32, img: &ViewImages, present: &[u32]) -
     Ok(())
 }
 
-/// Writes any serialisable value as pretty JSON.
+/// Writes any serialisable value as pretty JSON with a one-space indent (as the reference data).
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SynthError> {
     let f = std::fs::File::create(path).map_err(io_err(path))?;
     let mut w = std::io::BufWriter::new(f);
-    serde_json::to_writer_pretty(&mut w, value).map_err(|source| SynthError::Json { path: path.to_path_buf(), source })?;
+    let mut ser = serde_json::Serializer::with_formatter(&mut w, serde_json::ser::PrettyFormatter::with_indent(b" "));
+    value.serialize(&mut ser).map_err(|source| SynthError::Json { path: path.to_path_buf(), source })?;
     w.write_all(b"\n").map_err(io_err(path))?;
     w.flush().map_err(io_err(path))
 }

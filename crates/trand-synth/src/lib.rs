@@ -266,7 +266,7 @@ fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCor
 
 fn pose_info(p: &Pose) -> PoseInfo {
     let r = bop_writer::pose_rotation(p).transpose().to_cols_array();
-    PoseInfo { r_m2w: r.map(|v| (v * 1e9).round() / 1e9), t_m2w_mm: (p.translation.as_dvec3() * 1000.0).to_array().map(|v| (v * 1e4).round() / 1e4) }
+    PoseInfo { r_m2w: r.map(|v| bop_writer::round(v, 9)), t_m2w_mm: (p.translation.as_dvec3() * 1000.0).to_array().map(|v| bop_writer::round(v, 4)) }
 }
 
 fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError> {
