@@ -1,17 +1,19 @@
 //! Rigid-body settling with rapier3d.
 //!
-//! Every object is a dynamic body with one convex-hull collider of its mesh (a hull is exact for
-//! the outside of a vessel standing upright or upside down, which is how objects rest and stack
-//! here); the table is a fixed box whose top face is `z = 0`. The mass is the real glass mass
-//! (mesh volume × density) rather than that of the solid hull.
+//! Every object is a dynamic body with one convex-hull collider built from a simplified
+//! revolution of its profile ([`crate::shapes::collision_points`]; a hull is exact for the outside
+//! of a vessel standing upright or upside down, which is how objects rest and stack here), plus,
+//! for upside-down vessels, a thin box "plate" flush with the flat top ([`Plate`]). The table is a
+//! fixed box whose top face is `z = 0`. The mass is the real glass mass (mesh volume × density)
+//! rather than that of the solid hull.
 //!
 //! The world is stepped with a fixed time step on one thread (rapier without its `parallel`
 //! feature), so a given input always settles to the same poses. A simulation stops when every
 //! body is at rest (see [`settle`]) or after `max_steps`.
 //!
-//! For t = 1 a fresh world is built from the t = 0 rest poses without the removed object; the
-//! objects that touched it start awake, all others asleep, so only what is disturbed moves
-//! (chain reactions wake what they hit). Objects whose vertices all moved less than
+//! For t = 1 a fresh world is built from the t = 0 rest poses without the removed object; objects
+//! that were not standing on the table start awake, all others asleep ([`Wake`]), so only what is
+//! disturbed moves (chain reactions wake what they hit). Objects whose vertices all moved less than
 //! [`STATIC_SNAP_MM`] are snapped back to their t = 0 pose, so untouched objects are bit-identical
 //! between the states (as in the reference data).
 
