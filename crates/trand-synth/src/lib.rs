@@ -53,7 +53,7 @@ pub const MIN_OBJECTS: u32 = 2;
 pub const MAX_OBJECTS: u32 = 6;
 /// Largest accepted image side (16-bit PNG and memory sanity).
 pub const MAX_IMAGE_SIDE: u32 = 8192;
-/// Largest tilt of the supported object against its support's axis that [`seat_on_support`]
+/// Largest tilt of the supported object against its support's axis that the t = 0 seating
 /// corrects; beyond it the object is leaning or falling and keeps its simulated pose.
 pub const SEAT_MAX_TILT_DEG: f32 = 6.0;
 /// Gap left between a seated object and its support (m): keeps the two glass surfaces from
