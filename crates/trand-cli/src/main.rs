@@ -23,6 +23,8 @@ enum Command {
     Update(cmd::update::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
     Eval(cmd::eval::Args),
+    /// Generate a synthetic transparent-object sequence with exact ground truth.
+    Synth(cmd::synth::Args),
 }
 
 fn main() -> std::process::ExitCode {
@@ -36,6 +38,7 @@ fn main() -> std::process::ExitCode {
         Command::Reconstruct(a) => cmd::reconstruct::run(a),
         Command::Update(a) => cmd::update::run(a),
         Command::Eval(a) => cmd::eval::run(a),
+        Command::Synth(a) => cmd::synth::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

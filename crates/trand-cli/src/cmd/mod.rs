@@ -3,3 +3,4 @@ pub mod eval;
 pub mod info;
 pub mod reconstruct;
 pub mod update;
+pub mod synth;

@@ -1,0 +1,101 @@
+//! The camera rig of a sequence (same as the reference Blender data).
+//!
+//! * `train_0` frame 0: bird's-eye view straight down from [`BIRDSEYE_HEIGHT_M`] above the
+//!   workspace centre, image x along world x (so `R_w2c = diag(1, −1, −1)`).
+//! * `train_0` frames 1..=12: a ring at 30° azimuth steps (random start azimuth), elevation
+//!   [`RING_ELEVATION_DEG`], distance [`RING_DISTANCE_M`], looking at the workspace centre.
+//! * test views: azimuth uniform, elevation U(20°, 70°), distance U(0.45, 0.8) m, looking at the
+//!   centre jittered by U(±4 cm, ±4 cm, ±2 cm).
+//! * `train_1` frame 0 is the same pose as `train_0` frame 0.
+//!
+//! Intrinsics: `f = 600 · W / 640` (the reference's 600 px at 640 px width), centred principal
+//! point `c = ((W − 1)/2, (H − 1)/2)` (integer pixel centres).
+
+use glam::DVec3;
+use rand::RngExt;
+use serde::Serialize;
+use trand_core::camera::{Camera, Intrinsics};
+
+pub const BIRDSEYE_HEIGHT_M: f64 = 0.75;
+pub const RING_VIEWS: u32 = 12;
+pub const RING_ELEVATION_DEG: f64 = 38.0;
+pub const RING_DISTANCE_M: f64 = 0.54;
+pub const TEST_ELEVATION_DEG: (f64, f64) = (20.0, 70.0);
+pub const TEST_DISTANCE_M: (f64, f64) = (0.45, 0.8);
+pub const TEST_TARGET_JITTER_M: [f64; 3] = [0.04, 0.04, 0.02];
+/// Focal length in pixels at 640 px image width.
+pub const FOCAL_AT_640: f64 = 600.0;
+
+/// Intrinsics for a `width × height` image (focal scaled with width).
+pub fn intrinsics(width: u32, height: u32) -> Intrinsics {
+    Intrinsics::centered(FOCAL_AT_640 * width as f64 / 640.0, width, height)
+}
+
+/// The ring parameters as written to `sequence.json` (`cameras.train_ring`).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct RingInfo {
+    pub birdseye_height_m: f64,
+    pub ring_azimuth0_deg: f64,
+    pub ring_elevation_deg: f64,
+    pub ring_distance_m: f64,
+}
+
+/// Camera on a sphere around `target`: azimuth from +x towards +y, elevation above the table.
+pub fn orbit(k: Intrinsics, target: DVec3, azimuth_deg: f64, elevation_deg: f64, distance: f64) -> Camera {
+    let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    let eye = target + distance * DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+    Camera::look_at(k, eye, target, DVec3::Z)
+}
+
+/// Bird's-eye view plus the 12-view ring.
+pub fn train_views(k: Intrinsics, centre: DVec3, rng: &mut impl rand::Rng) -> (Vec<Camera>, RingInfo) {
+    let top = Camera::look_at(k, centre + DVec3::new(0.0, 0.0, BIRDSEYE_HEIGHT_M), centre, DVec3::Y);
+    let az0: f64 = rng.random_range(0.0..360.0);
+    let mut cams = vec![top];
+    cams.extend((0..RING_VIEWS).map(|i| orbit(k, centre, az0 + 30.0 * i as f64, RING_ELEVATION_DEG, RING_DISTANCE_M)));
+    let info = RingInfo { birdseye_height_m: BIRDSEYE_HEIGHT_M, ring_azimuth0_deg: az0, ring_elevation_deg: RING_ELEVATION_DEG, ring_distance_m: RING_DISTANCE_M };
+    (cams, info)
+}
+
+/// `n` random views on the upper hemisphere.
+pub fn test_views(k: Intrinsics, centre: DVec3, n: u32, rng: &mut impl rand::Rng) -> Vec<Camera> {
+    (0..n)
+        .map(|_| {
+            let az = rng.random_range(0.0..360.0);
+            let el = rng.random_range(TEST_ELEVATION_DEG.0..TEST_ELEVATION_DEG.1);
+            let dist = rng.random_range(TEST_DISTANCE_M.0..TEST_DISTANCE_M.1);
+            let j = TEST_TARGET_JITTER_M;
+            let target = centre + DVec3::new(rng.random_range(-j[0]..j[0]), rng.random_range(-j[1]..j[1]), rng.random_range(-j[2]..j[2]));
+            orbit(k, target, az, el, dist)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn birdseye_view_looks_straight_down_with_x_along_world_x() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
+        let (cams, _) = train_views(intrinsics(640, 480), DVec3::new(0.01, 0.02, 0.03), &mut rng);
+        let r = cams[0].rotation();
+        let want = glam::DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
+        assert!((r - want).to_cols_array().iter().all(|v| v.abs() < 1e-12), "{r:?}");
+        assert_eq!(cams.len(), 13);
+        assert!((cams[0].intrinsics.cx - 319.5).abs() < 1e-12 && (cams[0].intrinsics.fx - 600.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn ring_views_sit_at_the_ring_elevation_and_distance() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(2);
+        let centre = DVec3::new(0.0, 0.0, 0.03);
+        let (cams, _) = train_views(intrinsics(320, 240), centre, &mut rng);
+        for c in &cams[1..] {
+            let v = c.center() - centre;
+            assert!((v.length() - RING_DISTANCE_M).abs() < 1e-9);
+            assert!(((v.z / v.length()).asin().to_degrees() - RING_ELEVATION_DEG).abs() < 1e-9);
+        }
+    }
+}
