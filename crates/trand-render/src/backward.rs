@@ -29,7 +29,7 @@ use crate::binning::Bins;
 use crate::camera::{cross, CamR};
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{span_mask, tile_pixels, Plane};
-use crate::intersect::{intersect, ndc_depth};
+use crate::intersect::{intersect, ndc_depth, Row};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
 
@@ -176,12 +176,13 @@ pub fn backward_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
+            let row = Row::new(p, yr);
             while bits != 0 {
                 let lx = bits.trailing_zeros() as i32;
                 bits &= bits - 1;
                 let idx = ((ly * TILE as i32 + lx) as usize) & (TILE_PIXELS - 1);
                 let xr = R::from_f64((tx0 + lx) as f64);
-                let Some(h) = intersect(p, xr, yr, cam.near) else { continue };
+                let Some(h) = intersect(p, &row, xr, cam.near) else { continue };
                 if !touched {
                     acc = [z; rec::OBJ];
                     acc_obj[..k_obj].fill(z);
@@ -249,8 +250,9 @@ pub fn backward_tile<R: Real>(
                 };
                 let inv = R::ONE / h.pz;
                 let gp = [gu * inv, gv * inv, -(gu * h.u + gv * h.v) * inv];
-                let gk = cross(h.l, gp);
-                let gl = cross(gp, h.k);
+                let k = [xr * p.t_w[0] - p.t_u[0], xr * p.t_w[1] - p.t_u[1], xr * p.t_w[2] - p.t_u[2]];
+                let gk = cross(row.l, gp);
+                let gl = cross(gp, k);
                 let uv1 = [h.u, h.v, R::ONE];
                 for c in 0..3 {
                     acc[rec::T + c] -= gk[c];

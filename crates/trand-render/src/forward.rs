@@ -24,7 +24,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
-use crate::intersect::{intersect, ndc_depth};
+use crate::intersect::{intersect, ndc_depth, Row};
 use crate::layout::Layout;
 use crate::preprocess::Proj;
 
@@ -103,12 +103,12 @@ pub fn raster_tile<R: Real>(
             if bits == 0 {
                 continue;
             }
-            let yr = R::from_f64((ty0 + ly) as f64);
+            let row = Row::new(p, R::from_f64((ty0 + ly) as f64));
             while bits != 0 {
                 let lx = bits.trailing_zeros() as i32;
                 bits &= bits - 1;
                 let idx = ((ly * TILE as i32 + lx) as usize) & (TILE_PIXELS - 1);
-                let Some(h) = intersect(p, R::from_f64((tx0 + lx) as f64), yr, cam.near) else { continue };
+                let Some(h) = intersect(p, &row, R::from_f64((tx0 + lx) as f64), cam.near) else { continue };
                 let t_before = tr[idx];
                 let t_after = t_before * (R::ONE - h.alpha);
                 if t_after < min_t {

@@ -1,7 +1,7 @@
 //! The per-pixel ray–surfel intersection (2DGS eq. 8–11), shared by the forward and backward kernels.
 //!
-//! For pixel `(x, y)` the planes `x·T_w − T_u` and `y·T_w − T_v` intersect the splat plane along the
-//! ray; `p = k × l ∝ (u, v, 1)` gives the splat coordinates, `ρ₃ = u² + v²`. The screen-space filter
+//! For pixel `(x, y)` the planes `k = x·T_w − T_u` and `l = y·T_w − T_v` intersect the splat plane along
+//! the ray; `p = k × l ∝ (u, v, 1)` gives the splat coordinates, `ρ₃ = u² + v²`. The screen-space filter
 //! `ρ₂ = 2·|c − (x, y)|²` takes over where the disk is thinner than a pixel: `ρ = min(ρ₃, ρ₂)`,
 //! `G = exp(−ρ/2)`, `α = min(0.99, o·G)`. The camera depth of the hit is `z = T_w · (u, v, 1)`.
 
@@ -16,8 +16,6 @@ pub struct Hit<R> {
     pub u: R,
     pub v: R,
     pub z: R,
-    pub k: [R; 3],
-    pub l: [R; 3],
     pub pz: R,
     pub g: R,
     pub alpha: R,
@@ -27,14 +25,33 @@ pub struct Hit<R> {
     pub clamped: bool,
 }
 
+/// Per (surfel, pixel row) constants: along a row `l = y·T_w − T_v` is fixed, so
+/// `p = k × l = x·(T_w × l) − (T_u × l)` costs three multiply-adds per pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct Row<R> {
+    pub y: R,
+    pub l: [R; 3],
+    a: [R; 3],
+    b: [R; 3],
+}
+
+impl<R: Real> Row<R> {
+    #[inline(always)]
+    pub fn new(p: &Proj<R>, y: R) -> Self {
+        let (tu, tv, tw) = (&p.t_u, &p.t_v, &p.t_w);
+        let l = [y * tw[0] - tv[0], y * tw[1] - tv[1], y * tw[2] - tv[2]];
+        let cross = |u: &[R; 3]| [u[1] * l[2] - u[2] * l[1], u[2] * l[0] - u[0] * l[2], u[0] * l[1] - u[1] * l[0]];
+        Self { y, l, a: cross(tw), b: cross(tu) }
+    }
+}
+
+/// The hit of pixel `(x, row.y)` with surfel `p`, if it passes the depth and alpha gates.
 #[inline(always)]
-pub fn intersect<R: Real>(p: &Proj<R>, x: R, y: R, near: R) -> Option<Hit<R>> {
-    let (tu, tv, tw) = (&p.t_u, &p.t_v, &p.t_w);
-    let k = [x * tw[0] - tu[0], x * tw[1] - tu[1], x * tw[2] - tu[2]];
-    let l = [y * tw[0] - tv[0], y * tw[1] - tv[1], y * tw[2] - tv[2]];
-    let px = k[1] * l[2] - k[2] * l[1];
-    let py = k[2] * l[0] - k[0] * l[2];
-    let pz = k[0] * l[1] - k[1] * l[0];
+pub fn intersect<R: Real>(p: &Proj<R>, row: &Row<R>, x: R, near: R) -> Option<Hit<R>> {
+    let tw = &p.t_w;
+    let px = x * row.a[0] - row.b[0];
+    let py = x * row.a[1] - row.b[1];
+    let pz = x * row.a[2] - row.b[2];
     if pz == R::ZERO {
         return None;
     }
@@ -45,7 +62,7 @@ pub fn intersect<R: Real>(p: &Proj<R>, x: R, y: R, near: R) -> Option<Hit<R>> {
         return None;
     }
     let rho3 = u * u + v * v;
-    let (dx, dy) = (p.center[0] - x, p.center[1] - y);
+    let (dx, dy) = (p.center[0] - x, p.center[1] - row.y);
     let rho2 = R::from_f64(FILTER_INV_SQUARE) * (dx * dx + dy * dy);
     let object_space = rho3 <= rho2;
     let rho = if object_space { rho3 } else { rho2 };
@@ -57,7 +74,7 @@ pub fn intersect<R: Real>(p: &Proj<R>, x: R, y: R, near: R) -> Option<Hit<R>> {
     if alpha < R::from_f64(MIN_ALPHA) {
         return None;
     }
-    Some(Hit { u, v, z, k, l, pz, g, alpha, object_space, clamped })
+    Some(Hit { u, v, z, pz, g, alpha, object_space, clamped })
 }
 
 /// NDC-mapped depth used by the distortion loss, `m(z) = f/(f−n)·(1 − n/z)`, and its derivative.
