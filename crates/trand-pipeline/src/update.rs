@@ -1,9 +1,11 @@
 //! The t = 1 scene update after objects are taken away (paper §3.4, official-code notes §5 with the
 //! choices of §10):
 //!
-//! 1. **Detection**: render the t = 0 object map from the new view; match the rendered objects to the
-//!    new mask's instances by IoU with the Hungarian method; t = 0 objects left unmatched were removed
-//!    (`removed` overrides). Finding nothing removed is a valid outcome.
+//! 1. **Detection**: render the t = 0 object map from the new view; assign the new mask's instances to
+//!    the rendered objects with the Hungarian method on the cost `1 − IoU + w·(centroid distance /
+//!    image diagonal)`; t = 0 objects left without an instance were removed (`removed` overrides).
+//!    The centroid term matters when an object toppled far from where it stood (IoU near 0). Finding
+//!    nothing removed is a valid outcome.
 //! 2. **Deletion** of every surfel whose softmax probability of a removed object exceeds ½.
 //! 3. **Meshing**: depth of the remaining surfels (expected depth by default, §10 row 14) from a ring of
 //!    virtual views plus one from below the table, TSDF fusion, surface nets, vertices labelled by the
@@ -66,8 +68,9 @@ pub struct UpdateOptions {
     pub refine: Stage,
     /// Removed object ids given by the user instead of detection.
     pub removed: Option<Vec<u16>>,
-    /// Minimum IoU for a rendered t = 0 object and a new instance to be the same object.
-    pub min_iou: f64,
+    /// Weight of the centroid distance (in image diagonals) in the matching cost `1 − IoU + w·d`, so that
+    /// an object that moved far (low IoU) still finds its new instance rather than being taken as removed.
+    pub centroid_weight: f64,
     pub mesh_depth: MeshDepth,
     pub motion: SurfelMotion,
     pub fill: InteriorFill,
@@ -101,7 +104,7 @@ impl Default for UpdateOptions {
             physics: Stage::On,
             refine: Stage::On,
             removed: None,
-            min_iou: 0.1,
+            centroid_weight: 0.5,
             mesh_depth: MeshDepth::Expected,
             motion: SurfelMotion::Translate,
             fill: InteriorFill::None,
@@ -150,7 +153,7 @@ pub fn detect(
     channels: &[(u16, usize)],
     view: &View,
     settings: &RenderSettings,
-    min_iou: f64,
+    centroid_weight: f64,
 ) -> Result<Vec<Match>> {
     let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View { view: view.name.clone(), what: "no instance mask".into() })?;
     let out = render::<f32, _>(surfels, &view.camera, &RenderSettings { maps: Maps::RgbObjects, ..*settings })?;
@@ -169,17 +172,40 @@ pub fn detect(
     let new_ids: Vec<u16> = inst.ids().into_iter().filter(|&i| i != 0).collect();
     let new_masks: Vec<Vec<bool>> = new_ids.iter().map(|&i| inst.mask(i)).collect();
     let ious: Vec<Vec<f64>> = rendered.iter().map(|r| new_masks.iter().map(|m| iou(r, m)).collect()).collect();
-    let cost: Vec<Vec<f64>> = ious.iter().map(|row| row.iter().map(|v| 1.0 - v).collect()).collect();
+    let w = inst.width as usize;
+    let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
+    let centroid = |m: &[bool]| {
+        let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+        for (p, _) in m.iter().enumerate().filter(|(_, b)| **b) {
+            sx += (p % w) as f64;
+            sy += (p / w) as f64;
+            n += 1;
+        }
+        (n > 0).then(|| (sx / n as f64, sy / n as f64))
+    };
+    let rc: Vec<_> = rendered.iter().map(|m| centroid(m)).collect();
+    let nc: Vec<_> = new_masks.iter().map(|m| centroid(m)).collect();
+    let cost: Vec<Vec<f64>> = ious
+        .iter()
+        .zip(&rc)
+        .map(|(row, a)| {
+            row.iter()
+                .zip(&nc)
+                .map(|(v, b)| match (a, b) {
+                    (Some(a), Some(b)) => 1.0 - v + centroid_weight * ((a.0 - b.0).hypot(a.1 - b.1) / diag),
+                    // Not visible from the new view: the worst possible match.
+                    _ => 2.0 + centroid_weight,
+                })
+                .collect()
+        })
+        .collect();
     let assign = if new_ids.is_empty() { vec![None; channels.len()] } else { hungarian(&cost) };
     Ok(channels
         .iter()
         .enumerate()
-        .map(|(r, &(object_id, channel))| {
-            let (new_id, iou) = match assign[r] {
-                Some(c) if ious[r][c] >= min_iou => (Some(new_ids[c]), ious[r][c]),
-                _ => (None, assign[r].map_or(0.0, |c| ious[r][c])),
-            };
-            Match { object_id, channel, new_id, iou }
+        .map(|(r, &(object_id, channel))| match assign[r] {
+            Some(c) => Match { object_id, channel, new_id: Some(new_ids[c]), iou: ious[r][c] },
+            None => Match { object_id, channel, new_id: None, iou: ious[r].iter().copied().fold(0.0, f64::max) },
         })
         .collect())
 }
@@ -329,7 +355,7 @@ pub fn update(
     };
     let t0 = Instant::now();
     let object_aware = supervision == Supervision::ObjectAware;
-    let matches = if object_aware { detect(&surfels, channels, new_view, &settings, opts.min_iou)? } else { Vec::new() };
+    let matches = if object_aware { detect(&surfels, channels, new_view, &settings, opts.centroid_weight)? } else { Vec::new() };
     let removed: Vec<u16> = match &opts.removed {
         Some(r) => {
             for id in r {

@@ -1,0 +1,97 @@
+//! End-to-end checks of reconstruction and scene update: on a tiny synthetic scene (generated here by
+//! `trand-synth`, exact ground truth) and on the independent Blender sequences in `shared/data/blender`
+//! (skipped with a note when that folder is absent).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use trand_eval::{evaluate, Metrics};
+use trand_io::{read_sequence, select_train_views, Sequence, View, ViewCount};
+use trand_pipeline::outputs::render_views;
+use trand_pipeline::update::{update, SceneScale, UpdateOptions};
+use trand_pipeline::{reconstruct, ReconstructOptions, Supervision};
+use trand_render::RenderSettings;
+
+fn metrics(surfels: &trand_core::Surfels, views: &[View]) -> Metrics {
+    let renders = render_views(surfels, views, &RenderSettings::default()).expect("render");
+    let preds: Vec<(String, trand_io::DepthMap)> =
+        views.iter().zip(renders).map(|(v, r)| (v.name.clone(), r.depth)).collect();
+    evaluate(&preds, views).expect("evaluate")
+}
+
+fn scale(seq: &Sequence, downsample: u32) -> SceneScale {
+    let vs = select_train_views(&seq.train_t0, ViewCount::Six);
+    let cams: Vec<_> = vs.iter().map(|v| v.camera).collect();
+    let c: Vec<glam::DVec3> = cams.iter().map(|c| c.center()).collect();
+    let mean = c.iter().copied().sum::<glam::DVec3>() / c.len() as f64;
+    let extent = (1.1 * c.iter().map(|p| (*p - mean).length()).fold(0.0, f64::max)) as f32;
+    let f = trand_physics::focus_point(&cams).expect("cameras look at a common point");
+    let radius = (c.iter().map(|p| (*p - f).length()).sum::<f64>() / c.len() as f64) as f32;
+    SceneScale { extent, radius, downsample }
+}
+
+/// Reconstructs with `iterations` at `downsample`, then updates; returns (t0, t1) metrics and the
+/// removed ids the update found.
+fn run(seq: &Sequence, iterations: u32, downsample: u32) -> (Metrics, Metrics, Vec<u16>) {
+    let mut opts = ReconstructOptions { downsample, ..Default::default() };
+    opts.train.iterations = iterations;
+    let rec = reconstruct(seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false)).expect("reconstruct");
+    let m0 = metrics(&rec.surfels, &seq.test_t0);
+    let new_view = seq.train_t1.iter().find(|v| v.frame == 0).expect("train_1 frame 0");
+    let up = update(
+        rec.surfels.clone(),
+        &rec.channels,
+        new_view,
+        scale(seq, downsample),
+        Supervision::ObjectAware,
+        &UpdateOptions::default(),
+        &mut |_, _, _| {},
+        &mut |_| {},
+    )
+    .expect("update");
+    let m1 = metrics(&up.surfels, &seq.test_t1);
+    (m0, m1, up.removed)
+}
+
+#[test]
+fn tiny_synthetic_scene_is_reconstructed_and_updated_within_bounds() {
+    let dir = trand_io::ScratchDir::new("e2e-tiny").expect("scratch dir");
+    let out = dir.path().join("seq");
+    // Seed 1: removing the support drops the glass on it 5 cm without toppling (seeds that topple it by
+    // ~90°, e.g. 5, are beyond what one bird's-eye image and the soft MPM material recover).
+    let cfg = trand_synth::SynthConfig::new(trand_synth::Preset::Tiny, 1, &out);
+    trand_synth::generate(&cfg).expect("synth");
+    let seq = read_sequence(&out).expect("read synthetic sequence");
+    let (m0, m1, removed) = run(&seq, 200, 1);
+    println!("tiny t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}", m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]);
+    assert!(m0.mae_m < 0.04, "t0 MAE {} m", m0.mae_m);
+    assert!(m0.acc[2] > 0.6, "t0 share under 2.5 cm {}", m0.acc[2]);
+    assert_eq!(Some(removed), seq.removed_ids, "detected removal");
+    assert!(m1.mae_m < 0.04 && m1.acc[2] > 0.6, "t1 MAE {} m, share {}", m1.mae_m, m1.acc[2]);
+}
+
+fn blender(name: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender").join(name);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("note: {} not found; Blender end-to-end check skipped", p.display());
+        None
+    }
+}
+
+/// A short run (150 iterations at quarter resolution) on the independent Blender data already beats the
+/// paper's TRansPose rows (t0: MAE 0.0380 m, 69.11 % under 2.5 cm; t1: 0.0864 m, 48.46 %) and finds the
+/// removed object.
+#[test]
+fn blender_sequences_beat_the_papers_rows_after_a_short_run() {
+    for name in ["seq_101", "seq_105"] {
+        let Some(path) = blender(name) else { continue };
+        let seq = read_sequence(&path).expect("read Blender sequence");
+        let (m0, m1, removed) = run(&seq, 150, 4);
+        println!("{name} t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}", m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]);
+        assert!(m0.mae_m < 0.038 && m0.acc[2] > 0.6911, "{name} t0: MAE {} share {}", m0.mae_m, m0.acc[2]);
+        assert!(m1.mae_m < 0.0864 && m1.acc[2] > 0.4846, "{name} t1: MAE {} share {}", m1.mae_m, m1.acc[2]);
+        assert_eq!(Some(removed), seq.removed_ids, "{name}: detected removal");
+    }
+}
