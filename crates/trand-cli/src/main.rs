@@ -15,6 +15,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Benchmark methods over sequences (t=0 and t=1), with tables and an HTML report.
+    Bench(cmd::bench::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
@@ -28,6 +30,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Bench(a) => cmd::bench::run(a),
         Command::Info(a) => cmd::info::run(a),
         Command::Eval(a) => cmd::eval::run(a),
     };

@@ -1,0 +1,220 @@
+//! `trand bench` end to end with a stand-in `trand` (see `common`): resume, sharding + merge, failures,
+//! bad input.
+
+mod common;
+
+use common::{Fixture, text};
+
+fn s(p: &std::path::Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn second_run_recomputes_nothing() {
+    let f = Fixture::new("bench-resume");
+    let out = f.path().join("report");
+    let (a, b) = (f.seq("seq_a"), f.seq("seq_b"));
+    let args = [
+        "bench",
+        "--data",
+        s(&a),
+        s(&b),
+        "--out",
+        s(&out),
+        "--jobs",
+        "2",
+    ];
+    let o = f.trand(&args, "");
+    assert!(o.status.success(), "{}", text(&o));
+    let calls = f.calls();
+    let count = |c: &str| calls.iter().filter(|x| *x == c).count();
+    // Per sequence: 5 t0 owners, 7 t1 owners (all but views-6), each step runs one eval.
+    assert_eq!(
+        (count("reconstruct"), count("update"), count("eval")),
+        (10, 14, 24),
+        "{calls:?}"
+    );
+    let o = f.trand(&args, "");
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(f.calls().len(), calls.len(), "nothing recomputed");
+    assert_eq!(
+        String::from_utf8_lossy(&o.stdout)
+            .matches("cached ")
+            .count(),
+        24,
+        "{}",
+        text(&o)
+    );
+    for (seq, m, st) in [("seq_a", "trand", "t0"), ("seq_b", "physics-only", "t1")] {
+        assert!(
+            out.join(format!("runs/{seq}/{m}/{st}/metrics.json"))
+                .is_file()
+        );
+        assert!(out.join(format!("runs/{seq}/{m}/{st}.log")).is_file());
+    }
+    assert!(
+        !out.join("runs/seq_a/no-simulation/t0").exists(),
+        "no-simulation reuses trand's t0"
+    );
+    assert!(!out.join("runs/seq_a/views-6").exists(), "views-6 is trand");
+}
+
+#[test]
+fn two_merged_shards_give_the_tables_of_one_run() {
+    let f = Fixture::new("bench-shards");
+    let whole = f.path().join("whole");
+    let o = f.trand(
+        &[
+            "bench",
+            "--synth",
+            "2",
+            "--synth-preset",
+            "tiny",
+            "--out",
+            s(&whole),
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let n_whole = f.calls().len();
+    let mut shards = Vec::new();
+    for i in 0..2 {
+        let d = f.path().join(format!("shard{i}"));
+        let spec = format!("{i}/2");
+        let o = f.trand(
+            &[
+                "bench",
+                "--synth",
+                "2",
+                "--synth-preset",
+                "tiny",
+                "--out",
+                s(&d),
+                "--shard",
+                &spec,
+            ],
+            "",
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        shards.push(d);
+    }
+    // Both shards generate both sequences (each has jobs of each), the steps are split.
+    assert_eq!(f.calls().iter().filter(|c| *c == "synth").count(), 2 + 4);
+    assert_eq!(f.calls().len() - n_whole, n_whole + 2);
+    let merged = f.path().join("merged");
+    let o = f.trand(
+        &[
+            "bench",
+            "merge",
+            "--out",
+            s(&merged),
+            s(&shards[0]),
+            s(&shards[1]),
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    for file in ["tables.json", "tables.md", "bench.json"] {
+        assert_eq!(
+            std::fs::read_to_string(whole.join(file)).unwrap(),
+            std::fs::read_to_string(merged.join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    let t = std::fs::read_to_string(merged.join("tables.md")).unwrap();
+    assert!(t.contains("| trand t0 | 0.0050 |"), "{t}");
+    assert!(merged.join("data/synth_1001/sequence.json").is_file());
+}
+
+#[test]
+fn a_failed_step_is_logged_and_the_bench_goes_on_but_exits_non_zero() {
+    let f = Fixture::new("bench-fail");
+    let out = f.path().join("report");
+    let o = f.trand(
+        &[
+            "bench",
+            "--data",
+            s(&f.seq("seq_a")),
+            "--out",
+            s(&out),
+            "--methods",
+            "trand,plain-2dgs",
+        ],
+        "plain-2dgs",
+    );
+    assert!(!o.status.success());
+    let msg = text(&o);
+    assert!(
+        msg.contains("FAILED  seq_a/plain-2dgs/t0") && msg.contains("2 of 4 steps failed"),
+        "{msg}"
+    );
+    let log = std::fs::read_to_string(out.join("runs/seq_a/plain-2dgs/t0.log")).unwrap();
+    assert!(log.contains("fake failure of plain-2dgs"), "{log}");
+    assert!(out.join("runs/seq_a/trand/t1/metrics.json").is_file());
+    let t = std::fs::read_to_string(out.join("tables.md")).unwrap();
+    assert!(t.contains("| plain-2dgs t0 [0/1 seq] | – |"), "{t}");
+    // The failed step runs again next time, the finished ones do not.
+    let before = f.calls().len();
+    let o = f.trand(
+        &[
+            "bench",
+            "--data",
+            s(&f.seq("seq_a")),
+            "--out",
+            s(&out),
+            "--methods",
+            "trand,plain-2dgs",
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(
+        f.calls()[before..],
+        ["reconstruct", "eval", "update", "eval"]
+    );
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    let f = Fixture::new("bench-bad");
+    let a = f.seq("seq_a");
+    let out = f.path().join("r");
+    let under_file = a.join("sequence.json/r");
+    let cases: [(Vec<&str>, &str); 5] = [
+        (
+            vec!["--data", "/no/such/seq", "--out", s(&out)],
+            "--data /no/such/seq: no such folder",
+        ),
+        (
+            vec!["--data", s(&a), "--out", s(&out), "--shard", "0/0"],
+            "n must be at least 1",
+        ),
+        (
+            vec!["--data", s(&a), "--out", s(&out), "--shard", "3/2"],
+            "i must be below n",
+        ),
+        (
+            vec!["--data", s(&a), "--out", s(&under_file)],
+            "cannot create report folder",
+        ),
+        (
+            vec![
+                "--data",
+                s(&a),
+                "--out",
+                s(&out),
+                "--methods",
+                "trand,views-5",
+            ],
+            "unknown method `views-5`",
+        ),
+    ];
+    for (args, want) in cases {
+        let mut all = vec!["bench"];
+        all.extend(args);
+        let o = f.trand(&all, "");
+        assert!(!o.status.success(), "{all:?}");
+        assert!(text(&o).contains(want), "{all:?}: {}", text(&o));
+    }
+    assert!(f.calls().is_empty());
+}

@@ -1,0 +1,368 @@
+//! The benchmark tables, built from the run folders alone (so one bench and merged shards agree).
+//!
+//! Depth figures are the paper's: per sequence, the metrics pooled over every test view
+//! (`metrics.json`, from `trand eval`); per method, the unweighted mean over the sequences that have a
+//! result ([`trand_eval::mean_over_sequences`]). Efficiency figures are means over sequences of the
+//! `timings`, `num_surfels` and `peak_rss_mb` fields of `run.json`.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::Serialize;
+use trand_eval::Metrics;
+use trand_io::State;
+
+use crate::layout::{self, Manifest, ReportError};
+use crate::method::Method;
+
+/// Stages of `run.json`'s `timings` shown per state, in column order.
+pub const T0_STAGES: [&str; 3] = ["preprocess_s", "optimise_s", "total_s"];
+pub const T1_STAGES: [&str; 5] = [
+    "detection_s",
+    "meshing_s",
+    "simulation_s",
+    "refinement_s",
+    "total_s",
+];
+
+/// Stage names of a state.
+pub fn stages(state: State) -> &'static [&'static str] {
+    match state {
+        State::T0 => &T0_STAGES,
+        State::T1 => &T1_STAGES,
+    }
+}
+
+/// One method at one state: the mean metrics over the sequences that have a result.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AccuracyRow {
+    pub method: Method,
+    pub state: State,
+    /// Sequences with a result.
+    pub sequences: usize,
+    /// `None` when no sequence has a result.
+    pub metrics: Option<Metrics>,
+}
+
+/// Mean timings and model size of the runs a method owns at a state.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EfficiencyRow {
+    pub method: Method,
+    pub state: State,
+    pub sequences: usize,
+    /// Mean seconds per stage (`run.json` `timings`), over the sequences that report the stage.
+    pub timings_s: BTreeMap<String, f64>,
+    /// Mean surfel (Gaussian) count.
+    pub num_surfels: Option<f64>,
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// Every method and state of one sequence.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SequenceRows {
+    pub sequence: String,
+    pub rows: Vec<AccuracyRow>,
+}
+
+/// All tables of a report (`tables.json`; [`Tables::markdown`] gives `tables.md`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Tables {
+    pub sequences: Vec<String>,
+    pub accuracy_t0: Vec<AccuracyRow>,
+    pub accuracy_t1: Vec<AccuracyRow>,
+    pub efficiency_t0: Vec<EfficiencyRow>,
+    pub efficiency_t1: Vec<EfficiencyRow>,
+    /// trand vs no-object-loss, t0 then t1.
+    pub loss_ablation: Vec<AccuracyRow>,
+    /// trand, no-simulation, physics-only at t1.
+    pub simulation_ablation: Vec<AccuracyRow>,
+    /// views-3, views-6, views-12, t0 then t1.
+    pub view_study: Vec<AccuracyRow>,
+    pub per_sequence: Vec<SequenceRows>,
+}
+
+/// `metrics.json` of a run folder, `None` if absent.
+pub fn read_metrics(run: &Path) -> Result<Option<Metrics>, ReportError> {
+    let path = run.join(trand_io::run_layout::METRICS_JSON);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| ReportError::io(&path, e))?;
+    let mut m: Metrics =
+        serde_json::from_str(&text).map_err(|source| ReportError::Json { path, source })?;
+    m.per_view.clear();
+    Ok(Some(m))
+}
+
+/// `run.json` of a run folder, `None` if absent.
+pub fn read_run_json(run: &Path) -> Result<Option<serde_json::Value>, ReportError> {
+    let path = run.join(trand_io::run_layout::RUN_JSON);
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| ReportError::io(&path, e))?;
+    serde_json::from_str(&text)
+        .map(Some)
+        .map_err(|source| ReportError::Json { path, source })
+}
+
+fn mean(v: &[f64]) -> Option<f64> {
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+struct Collected {
+    /// (sequence, method, state) → metrics, for every manifest method.
+    metrics: BTreeMap<(String, Method, &'static str), Metrics>,
+}
+
+impl Collected {
+    fn row(&self, seqs: &[String], method: Method, state: State) -> AccuracyRow {
+        let found: Vec<Metrics> = seqs
+            .iter()
+            .filter_map(|s| {
+                self.metrics
+                    .get(&(s.clone(), method, state.as_str()))
+                    .cloned()
+            })
+            .collect();
+        AccuracyRow {
+            method,
+            state,
+            sequences: found.len(),
+            metrics: (!found.is_empty()).then(|| trand_eval::mean_over_sequences(&found)),
+        }
+    }
+}
+
+/// Owners of the runs of `methods` at `state`, each once, in table order.
+fn owners(methods: &[Method], state: State) -> Vec<Method> {
+    let mut v: Vec<Method> = methods.iter().map(|m| m.source(state)).collect();
+    v.sort();
+    v.dedup();
+    v
+}
+
+fn efficiency(
+    report: &Path,
+    seqs: &[String],
+    method: Method,
+    state: State,
+) -> Result<EfficiencyRow, ReportError> {
+    let mut stage_vals: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let (mut surfels, mut rss, mut n) = (Vec::new(), Vec::new(), 0);
+    for s in seqs {
+        let dir = layout::run_dir(report, s, method, state);
+        if read_metrics(&dir)?.is_none() {
+            continue;
+        }
+        let Some(run) = read_run_json(&dir)? else {
+            continue;
+        };
+        n += 1;
+        if let Some(t) = run.get("timings").and_then(|t| t.as_object()) {
+            for (k, v) in t {
+                if let Some(x) = v.as_f64() {
+                    stage_vals.entry(k.clone()).or_default().push(x);
+                }
+            }
+        }
+        surfels.extend(run.get("num_surfels").and_then(|v| v.as_f64()));
+        rss.extend(run.get("peak_rss_mb").and_then(|v| v.as_f64()));
+    }
+    Ok(EfficiencyRow {
+        method,
+        state,
+        sequences: n,
+        timings_s: stage_vals
+            .into_iter()
+            .filter_map(|(k, v)| mean(&v).map(|m| (k, m)))
+            .collect(),
+        num_surfels: mean(&surfels),
+        peak_rss_mb: mean(&rss),
+    })
+}
+
+/// Builds every table from `REPORT/runs/`. Missing results leave gaps; unreadable files are errors.
+pub fn build_tables(report: &Path, manifest: &Manifest) -> Result<Tables, ReportError> {
+    let seqs: Vec<String> = manifest.sequences.iter().map(|s| s.name.clone()).collect();
+    let mut methods = manifest.methods.clone();
+    methods.sort();
+    methods.dedup();
+    let mut c = Collected {
+        metrics: BTreeMap::new(),
+    };
+    for s in &seqs {
+        for &m in &methods {
+            for state in [State::T0, State::T1] {
+                if let Some(x) = read_metrics(&layout::result_dir(report, s, m, state))? {
+                    c.metrics.insert((s.clone(), m, state.as_str()), x);
+                }
+            }
+        }
+    }
+    let rows = |list: &[Method], states: &[State]| -> Vec<AccuracyRow> {
+        states
+            .iter()
+            .flat_map(|&st| {
+                list.iter()
+                    .filter(|m| methods.contains(m))
+                    .map(move |&m| (m, st))
+            })
+            .map(|(m, st)| c.row(&seqs, m, st))
+            .collect()
+    };
+    let both = [State::T0, State::T1];
+    let eff = |state| -> Result<Vec<EfficiencyRow>, ReportError> {
+        owners(&methods, state)
+            .into_iter()
+            .map(|m| efficiency(report, &seqs, m, state))
+            .collect()
+    };
+    let efficiency_t0 = eff(State::T0)?;
+    let efficiency_t1 = eff(State::T1)?;
+    Ok(Tables {
+        accuracy_t0: rows(&methods, &[State::T0]),
+        accuracy_t1: rows(&methods, &[State::T1]),
+        efficiency_t0,
+        efficiency_t1,
+        loss_ablation: rows(&[Method::Trand, Method::NoObjectLoss], &both),
+        simulation_ablation: rows(
+            &[Method::Trand, Method::NoSimulation, Method::PhysicsOnly],
+            &[State::T1],
+        ),
+        view_study: rows(&[Method::Views3, Method::Views6, Method::Views12], &both),
+        per_sequence: seqs
+            .iter()
+            .map(|s| SequenceRows {
+                sequence: s.clone(),
+                rows: rows(&methods, &both)
+                    .into_iter()
+                    .map(|r| c.row(std::slice::from_ref(s), r.method, r.state))
+                    .collect(),
+            })
+            .collect(),
+        sequences: seqs,
+    })
+}
+
+/// Row label: `method t0`, with `[k/n seq]` when only some sequences have a result.
+pub fn row_label(r: &AccuracyRow, total: usize) -> String {
+    let mut s = format!("{} {}", r.method, r.state.as_str());
+    if r.sequences != total {
+        let _ = write!(s, " [{}/{} seq]", r.sequences, total);
+    }
+    s
+}
+
+/// An accuracy table in the paper's columns; rows without results show dashes.
+pub fn accuracy_markdown(rows: &[AccuracyRow], total: usize) -> String {
+    let labels: Vec<String> = rows.iter().map(|r| row_label(r, total)).collect();
+    let present: Vec<(&str, &Metrics)> = rows
+        .iter()
+        .zip(&labels)
+        .filter_map(|(r, l)| r.metrics.as_ref().map(|m| (l.as_str(), m)))
+        .collect();
+    let mut s = trand_eval::table(&present);
+    for (r, l) in rows.iter().zip(&labels) {
+        if r.metrics.is_none() {
+            let _ = writeln!(s, "| {l} |{}", " – |".repeat(8));
+        }
+    }
+    s
+}
+
+fn opt(v: Option<f64>, decimals: usize) -> String {
+    v.map(|x| format!("{x:.decimals$}"))
+        .unwrap_or_else(|| "–".into())
+}
+
+/// An efficiency table: seconds per stage, Gaussians, peak memory.
+pub fn efficiency_markdown(rows: &[EfficiencyRow], state: State) -> String {
+    let st = stages(state);
+    let mut s = String::from("| | sequences |");
+    for k in st {
+        let _ = write!(s, " {} (s) |", k.trim_end_matches("_s"));
+    }
+    s += " Gaussians | peak RSS (MB) |\n|---|---|";
+    s += &"---|".repeat(st.len() + 2);
+    s.push('\n');
+    for r in rows {
+        let _ = write!(s, "| {} {} | {} |", r.method, state.as_str(), r.sequences);
+        for k in st {
+            let _ = write!(s, " {} |", opt(r.timings_s.get(*k).copied(), 2));
+        }
+        let _ = writeln!(
+            s,
+            " {} | {} |",
+            opt(r.num_surfels, 0),
+            opt(r.peak_rss_mb, 0)
+        );
+    }
+    s
+}
+
+impl Tables {
+    /// `tables.md`.
+    pub fn markdown(&self) -> String {
+        let n = self.sequences.len();
+        let mut s = String::from("# trand benchmark\n\n");
+        let _ = writeln!(s, "Sequences ({n}): {}\n", self.sequences.join(", "));
+        let _ = writeln!(
+            s,
+            "Depth metrics: MAE and RMSE in metres, accuracies in % of pixels; per sequence pooled over all \
+             test views, then the unweighted mean over sequences. Pixels: {}.\n",
+            trand_eval::PIXEL_SET_NOTE
+        );
+        let sections: [(&str, String); 8] = [
+            (
+                "Depth accuracy at t=0",
+                accuracy_markdown(&self.accuracy_t0, n),
+            ),
+            (
+                "Depth accuracy at t=1",
+                accuracy_markdown(&self.accuracy_t1, n),
+            ),
+            (
+                "Efficiency at t=0",
+                efficiency_markdown(&self.efficiency_t0, State::T0),
+            ),
+            (
+                "Efficiency at t=1",
+                efficiency_markdown(&self.efficiency_t1, State::T1),
+            ),
+            (
+                "Loss ablation (object-aware 3D loss)",
+                accuracy_markdown(&self.loss_ablation, n),
+            ),
+            (
+                "Simulation ablation (t=1)",
+                accuracy_markdown(&self.simulation_ablation, n),
+            ),
+            (
+                "Number of training views",
+                accuracy_markdown(&self.view_study, n),
+            ),
+            ("Per sequence", String::new()),
+        ];
+        for (title, body) in sections {
+            let _ = writeln!(s, "## {title}\n");
+            if !body.is_empty() {
+                let _ = writeln!(s, "{body}");
+            }
+        }
+        for q in &self.per_sequence {
+            let _ = writeln!(s, "### {}\n\n{}", q.sequence, accuracy_markdown(&q.rows, 1));
+        }
+        s
+    }
+}
+
+/// Builds the tables and writes `tables.md` and `tables.json`.
+pub fn write_tables(report: &Path, manifest: &Manifest) -> Result<Tables, ReportError> {
+    let t = build_tables(report, manifest)?;
+    trand_io::write_atomic(&report.join(layout::TABLES_MD), t.markdown().as_bytes())?;
+    let json = serde_json::to_vec_pretty(&t).expect("tables serialise");
+    trand_io::write_atomic(&report.join(layout::TABLES_JSON), &json)?;
+    Ok(t)
+}
