@@ -218,3 +218,69 @@ fn bad_input_is_a_clear_error() {
     }
     assert!(f.calls().is_empty());
 }
+
+/// Every `src="…"` and local `href="…"` of the report's pages names an existing file.
+fn check_links(report: &std::path::Path) -> usize {
+    let mut pages = vec![report.join("index.html")];
+    for e in std::fs::read_dir(report.join("seq")).unwrap() {
+        pages.push(e.unwrap().path());
+    }
+    let mut n = 0;
+    for p in pages {
+        let html = std::fs::read_to_string(&p).unwrap();
+        assert!(
+            !html.contains("http://") && !html.contains("https://") && !html.contains("<script"),
+            "{}",
+            p.display()
+        );
+        for attr in ["src=\"", "href=\""] {
+            for part in html.split(attr).skip(1) {
+                let target = part.split('"').next().unwrap();
+                let file = p.parent().unwrap().join(target);
+                assert!(
+                    file.is_file(),
+                    "{}: {attr}{target} does not exist",
+                    p.display()
+                );
+                n += 1;
+            }
+        }
+    }
+    n
+}
+
+#[test]
+fn every_image_and_link_of_the_report_exists() {
+    let f = Fixture::new("bench-html");
+    let out = f.path().join("report");
+    let o = f.trand(
+        &[
+            "bench",
+            "--data",
+            s(&f.seq("seq_a")),
+            s(&f.seq("seq_b")),
+            "--out",
+            s(&out),
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let n = check_links(&out);
+    let page = std::fs::read_to_string(out.join("seq/seq_a.html")).unwrap();
+    // 4 training thumbnails, and per state 2 views × (4 written images + the run's object map).
+    assert_eq!(page.matches("<img").count(), 4 + 2 * 2 * 5, "{page}");
+    assert!(n >= 2 * 24 + 4, "{n}");
+    for plot in [
+        "|error| of trand at t0",
+        "accuracy vs threshold at t1",
+        "training loss at t0",
+        "time per stage at t1",
+    ] {
+        assert!(page.contains(plot), "{plot}");
+    }
+    let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        index.contains("<td>trand t0</td><td>0.0050</td>"),
+        "{index}"
+    );
+}

@@ -18,10 +18,15 @@
 //! * [`tables`]: collecting results into [`Tables`] and writing them as Markdown and JSON.
 //! * [`colormap`], [`raster`], [`svg`], [`html`]: the report.
 
+pub mod colormap;
+pub mod html;
 pub mod layout;
 pub mod method;
+pub mod raster;
+pub mod svg;
 pub mod tables;
 
+pub use html::write_report;
 pub use layout::{Manifest, ReportError, SequenceEntry};
 pub use method::Method;
 pub use tables::{Tables, build_tables, write_tables};

@@ -69,7 +69,9 @@ pub struct SequenceRows {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Tables {
     pub sequences: Vec<String>,
+    /// Methods with their own t=0 run (the others reuse one of these).
     pub accuracy_t0: Vec<AccuracyRow>,
+    /// Methods with their own t=1 run (all but views-6, which is trand).
     pub accuracy_t1: Vec<AccuracyRow>,
     pub efficiency_t0: Vec<EfficiencyRow>,
     pub efficiency_t1: Vec<EfficiencyRow>,
@@ -192,8 +194,11 @@ pub fn build_tables(report: &Path, manifest: &Manifest) -> Result<Tables, Report
     let mut c = Collected {
         metrics: BTreeMap::new(),
     };
+    let mut read = methods.clone();
+    read.extend(owners(&methods, State::T0));
+    read.extend(owners(&methods, State::T1));
     for s in &seqs {
-        for &m in &methods {
+        for &m in &read {
             for state in [State::T0, State::T1] {
                 if let Some(x) = read_metrics(&layout::result_dir(report, s, m, state))? {
                     c.metrics.insert((s.clone(), m, state.as_str()), x);
@@ -204,14 +209,18 @@ pub fn build_tables(report: &Path, manifest: &Manifest) -> Result<Tables, Report
     let rows = |list: &[Method], states: &[State]| -> Vec<AccuracyRow> {
         states
             .iter()
-            .flat_map(|&st| {
-                list.iter()
-                    .filter(|m| methods.contains(m))
-                    .map(move |&m| (m, st))
-            })
+            .flat_map(|&st| list.iter().map(move |&m| (m, st)))
             .map(|(m, st)| c.row(&seqs, m, st))
             .collect()
     };
+    // The selected methods among `list`.
+    let sel = |list: &[Method]| -> Vec<Method> {
+        list.iter()
+            .copied()
+            .filter(|m| methods.contains(m))
+            .collect()
+    };
+    let (own0, own1) = (owners(&methods, State::T0), owners(&methods, State::T1));
     let both = [State::T0, State::T1];
     let eff = |state| -> Result<Vec<EfficiencyRow>, ReportError> {
         owners(&methods, state)
@@ -222,23 +231,28 @@ pub fn build_tables(report: &Path, manifest: &Manifest) -> Result<Tables, Report
     let efficiency_t0 = eff(State::T0)?;
     let efficiency_t1 = eff(State::T1)?;
     Ok(Tables {
-        accuracy_t0: rows(&methods, &[State::T0]),
-        accuracy_t1: rows(&methods, &[State::T1]),
+        accuracy_t0: rows(&own0, &[State::T0]),
+        accuracy_t1: rows(&own1, &[State::T1]),
         efficiency_t0,
         efficiency_t1,
-        loss_ablation: rows(&[Method::Trand, Method::NoObjectLoss], &both),
+        loss_ablation: rows(&sel(&[Method::Trand, Method::NoObjectLoss]), &both),
         simulation_ablation: rows(
-            &[Method::Trand, Method::NoSimulation, Method::PhysicsOnly],
+            &sel(&[Method::Trand, Method::NoSimulation, Method::PhysicsOnly]),
             &[State::T1],
         ),
-        view_study: rows(&[Method::Views3, Method::Views6, Method::Views12], &both),
+        view_study: rows(
+            &sel(&[Method::Views3, Method::Views6, Method::Views12]),
+            &both,
+        ),
         per_sequence: seqs
             .iter()
             .map(|s| SequenceRows {
                 sequence: s.clone(),
-                rows: rows(&methods, &both)
-                    .into_iter()
-                    .map(|r| c.row(std::slice::from_ref(s), r.method, r.state))
+                rows: own0
+                    .iter()
+                    .map(|&m| (m, State::T0))
+                    .chain(own1.iter().map(|&m| (m, State::T1)))
+                    .map(|(m, st)| c.row(std::slice::from_ref(s), m, st))
                     .collect(),
             })
             .collect(),

@@ -180,8 +180,9 @@ pub fn execute(plan: &Plan) -> anyhow::Result<Summary> {
     );
     let steps = runner::run_jobs(&runner, &my_jobs, plan.jobs);
     let tables = trand_report::write_tables(&plan.report, &manifest)?;
-    let s = Summary { tables, steps };
-    Ok(s)
+    trand_report::write_report(&plan.report, &manifest, &tables)
+        .with_context(|| format!("writing the HTML report in {}", plan.report.display()))?;
+    Ok(Summary { tables, steps })
 }
 
 /// Prints the main tables and the failures; `Err` when any step failed.

@@ -136,6 +136,8 @@ pub fn merge(out: &Path, shards: &[PathBuf]) -> anyhow::Result<(Manifest, trand_
     manifest.normalise();
     manifest.write(out)?;
     let tables = trand_report::write_tables(out, &manifest)?;
+    trand_report::write_report(out, &manifest, &tables)
+        .with_context(|| format!("writing the HTML report in {}", out.display()))?;
     Ok((manifest, tables))
 }
 
@@ -150,6 +152,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "Depth accuracy at t=1\n{}",
         trand_report::tables::accuracy_markdown(&tables.accuracy_t1, n)
     );
-    println!("tables: {}", a.out.join(layout::TABLES_MD).display());
+    println!(
+        "tables: {}\nreport: {}",
+        a.out.join(layout::TABLES_MD).display(),
+        a.out.join(layout::INDEX_HTML).display()
+    );
     Ok(())
 }
