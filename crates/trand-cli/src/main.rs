@@ -17,6 +17,8 @@ struct Cli {
 enum Command {
     /// Benchmark methods over sequences (t=0 and t=1), with tables and an HTML report.
     Bench(cmd::bench::Args),
+    /// Generate a small scene, run t=0 and t=1, evaluate and write a report (a few minutes).
+    Demo(cmd::demo::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
@@ -31,6 +33,7 @@ fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
         Command::Eval(a) => cmd::eval::run(a),
     };
