@@ -101,9 +101,9 @@ pub fn efficiency_html(rows: &[EfficiencyRow], state: State) -> String {
         for k in st {
             let _ = write!(s, "<td>{}</td>", fmt_opt(r.timings_s.get(*k).copied(), 2));
         }
-        let _ = write!(
+        let _ = writeln!(
             s,
-            "<td>{}</td><td>{}</td></tr>\n",
+            "<td>{}</td><td>{}</td></tr>",
             fmt_opt(r.num_surfels, 0),
             fmt_opt(r.peak_rss_mb, 0)
         );
@@ -347,8 +347,8 @@ impl StateView<'_> {
             "absolute error (m)",
         );
         let mut acc = Vec::new();
-        for &m in &manifest.methods {
-            if let Some(x) = read_metrics(&layout::result_dir(
+        for m in owners(manifest, self.state) {
+            if let Some(x) = read_metrics(&layout::run_dir(
                 self.report,
                 &self.entry.name,
                 m,

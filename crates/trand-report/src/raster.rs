@@ -29,7 +29,7 @@ pub fn abs_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap
         .zip(&gt.data)
         .zip(&inst.data)
         .map(|((&p, &g), &id)| {
-            if id == 0 || !(g > 0.0) || !g.is_finite() {
+            if id == 0 || g.is_nan() || g <= 0.0 || !g.is_finite() {
                 f32::NAN
             } else {
                 let p = if p.is_finite() { p } else { 0.0 };

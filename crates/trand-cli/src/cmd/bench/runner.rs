@@ -210,7 +210,9 @@ pub fn run_jobs(runner: &Runner, jobs: &[Job], threads: usize) -> Vec<(Step, Out
             .progress_chars("=> "),
     );
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<(usize, Vec<(Step, Outcome)>)>> = Mutex::new(Vec::new());
+    // (job index, its steps' outcomes), in completion order.
+    type JobResult = (usize, Vec<(Step, Outcome)>);
+    let results: Mutex<Vec<JobResult>> = Mutex::new(Vec::new());
     std::thread::scope(|scope| {
         for _ in 0..threads.max(1) {
             scope.spawn(|| {
