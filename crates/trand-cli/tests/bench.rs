@@ -153,6 +153,12 @@ fn a_failed_step_is_logged_and_the_bench_goes_on_but_exits_non_zero() {
     assert!(out.join("runs/seq_a/trand/t1/metrics.json").is_file());
     let t = std::fs::read_to_string(out.join("tables.md")).unwrap();
     assert!(t.contains("| plain-2dgs t0 [0/1 seq] | – |"), "{t}");
+    let index = std::fs::read_to_string(out.join("index.html")).unwrap();
+    assert!(
+        index.contains("runs/seq_a/plain-2dgs/t0.log")
+            && index.contains("runs/seq_a/plain-2dgs/t1.log")
+    );
+    check_links(&out);
     // The failed step runs again next time, the finished ones do not.
     let before = f.calls().len();
     let o = f.trand(

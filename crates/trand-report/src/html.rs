@@ -115,7 +115,31 @@ fn seq_file(name: &str) -> String {
     format!("{SEQ_DIR}/{name}.html")
 }
 
-fn index_page(manifest: &Manifest, t: &Tables) -> String {
+/// Logs of steps that ran but left no `metrics.json` (failed or interrupted), as paths relative to
+/// the report, sorted.
+pub fn unfinished_logs(report: &Path, manifest: &Manifest) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in &manifest.sequences {
+        for m in Method::ALL {
+            for st in [State::T0, State::T1] {
+                let log = layout::log_path(report, &e.name, m, st);
+                let run = layout::run_dir(report, &e.name, m, st);
+                if log.is_file() && !run.join(run_layout::METRICS_JSON).is_file() {
+                    out.push(format!(
+                        "{}/{}/{}/{}.log",
+                        layout::RUNS_DIR,
+                        e.name,
+                        m,
+                        st.as_str()
+                    ));
+                }
+            }
+        }
+    }
+    out
+}
+
+fn index_page(manifest: &Manifest, t: &Tables, unfinished: &[String]) -> String {
     let n = t.sequences.len();
     let methods: Vec<&str> = manifest.methods.iter().map(|m| m.name()).collect();
     let mut b = String::from("<h1>trand benchmark</h1>\n");
@@ -139,6 +163,13 @@ fn index_page(manifest: &Manifest, t: &Tables) -> String {
         );
     }
     b += "</ul>\n";
+    if !unfinished.is_empty() {
+        b += "<h2>Steps without a result</h2>\n<p class=\"note\">Failed or interrupted; their output:</p>\n<ul>\n";
+        for l in unfinished {
+            let _ = writeln!(b, "<li><a href=\"{}\">{}</a></li>", escape(l), escape(l));
+        }
+        b += "</ul>\n";
+    }
     let sections = [
         ("Depth accuracy at t=0", accuracy_html(&t.accuracy_t0, n)),
         ("Depth accuracy at t=1", accuracy_html(&t.accuracy_t1, n)),
@@ -531,6 +562,7 @@ pub fn write_report(
         trand_io::write_atomic(&path, html.as_bytes())?;
     }
     let index = report.join(layout::INDEX_HTML);
-    trand_io::write_atomic(&index, index_page(manifest, t).as_bytes())?;
+    let unfinished = unfinished_logs(report, manifest);
+    trand_io::write_atomic(&index, index_page(manifest, t, &unfinished).as_bytes())?;
     Ok(index)
 }

@@ -380,3 +380,165 @@ pub fn write_tables(report: &Path, manifest: &Manifest) -> Result<Tables, Report
     trand_io::write_atomic(&report.join(layout::TABLES_JSON), &json)?;
     Ok(t)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::{RunSettings, SequenceEntry, SequenceSource};
+
+    fn metrics(mae: f64, acc0: f64) -> Metrics {
+        Metrics {
+            mae_m: mae,
+            rmse_m: 2.0 * mae,
+            thresholds_m: trand_eval::THRESHOLDS_M,
+            acc: [acc0, 0.5, 0.6, 0.7, 0.8, 1.0],
+            pixels: 100,
+            uncovered: 0,
+            sequences: 1,
+            pixel_set: "test".into(),
+            per_view: Vec::new(),
+        }
+    }
+
+    fn put(report: &Path, seq: &str, m: Method, st: State, x: &Metrics, run: serde_json::Value) {
+        let dir = layout::run_dir(report, seq, m, st);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("metrics.json"), serde_json::to_string(x).unwrap()).unwrap();
+        std::fs::write(dir.join("run.json"), run.to_string()).unwrap();
+    }
+
+    fn manifest(methods: &[Method]) -> Manifest {
+        let e = |n: &str| SequenceEntry {
+            name: n.into(),
+            data: n.into(),
+            source: SequenceSource::Folder,
+        };
+        Manifest {
+            sequences: vec![e("a"), e("b")],
+            methods: methods.to_vec(),
+            settings: RunSettings::default(),
+        }
+    }
+
+    #[test]
+    fn means_are_unweighted_over_sequences_and_reused_runs_are_read_from_their_owner() {
+        let dir = trand_io::ScratchDir::new("tables").unwrap();
+        let r = dir.path();
+        let t0 = serde_json::json!({"timings": {"preprocess_s": 1.0, "optimise_s": 3.0, "total_s": 4.0}, "num_surfels": 10});
+        put(
+            r,
+            "a",
+            Method::Trand,
+            State::T0,
+            &metrics(0.01, 0.2),
+            t0.clone(),
+        );
+        put(
+            r,
+            "b",
+            Method::Trand,
+            State::T0,
+            &metrics(0.03, 0.4),
+            serde_json::json!({"num_surfels": 30}),
+        );
+        put(
+            r,
+            "a",
+            Method::NoSimulation,
+            State::T1,
+            &metrics(0.05, 0.1),
+            serde_json::json!({}),
+        );
+        let t = build_tables(
+            r,
+            &manifest(&[Method::Trand, Method::NoSimulation, Method::Views6]),
+        )
+        .unwrap();
+        // t0: only the owner (trand); no-simulation and views-6 reuse it.
+        assert_eq!(t.accuracy_t0.len(), 1);
+        let m = t.accuracy_t0[0].metrics.as_ref().unwrap();
+        assert!((m.mae_m - 0.02).abs() < 1e-12 && (m.acc[0] - 0.3).abs() < 1e-12);
+        assert_eq!((m.sequences, t.accuracy_t0[0].sequences), (2, 2));
+        let v6 = t
+            .view_study
+            .iter()
+            .find(|r| r.method == Method::Views6 && r.state == State::T0)
+            .unwrap();
+        assert_eq!(v6.metrics.as_ref().unwrap().mae_m, m.mae_m);
+        // t1: trand has no result, no-simulation one of two sequences.
+        let rows: Vec<(Method, usize)> = t
+            .accuracy_t1
+            .iter()
+            .map(|r| (r.method, r.sequences))
+            .collect();
+        assert_eq!(rows, vec![(Method::Trand, 0), (Method::NoSimulation, 1)]);
+        // Efficiency: timings from the one sequence that has them, surfels from both.
+        let e = &t.efficiency_t0[0];
+        assert_eq!(
+            (e.sequences, e.timings_s["optimise_s"], e.num_surfels),
+            (2, 3.0, Some(20.0))
+        );
+        assert_eq!(
+            t.per_sequence[1].rows[0].metrics.as_ref().unwrap().mae_m,
+            0.03
+        );
+    }
+
+    #[test]
+    fn markdown_tables_show_gaps_and_partial_coverage() {
+        let row = |m, n, x: Option<Metrics>| AccuracyRow {
+            method: m,
+            state: State::T1,
+            sequences: n,
+            metrics: x,
+        };
+        let md = accuracy_markdown(
+            &[
+                row(Method::Trand, 2, Some(metrics(0.0123, 0.25))),
+                row(Method::PhysicsOnly, 1, Some(metrics(0.5, 0.0))),
+                row(Method::NoSimulation, 0, None),
+            ],
+            2,
+        );
+        let lines: Vec<&str> = md.lines().collect();
+        assert_eq!(
+            lines[0],
+            "| | MAE ↓ | RMSE ↓ | <0.5cm ↑ | <1cm ↑ | <2.5cm ↑ | <5cm ↑ | <10cm ↑ | <20cm ↑ |"
+        );
+        assert_eq!(
+            lines[2],
+            "| trand t1 | 0.0123 | 0.0246 | 25.00% | 50.00% | 60.00% | 70.00% | 80.00% | 100.00% |"
+        );
+        assert!(
+            lines[3].starts_with("| physics-only t1 [1/2 seq] | 0.5000 |"),
+            "{md}"
+        );
+        assert_eq!(
+            lines[4],
+            "| no-simulation t1 [0/2 seq] | – | – | – | – | – | – | – | – |"
+        );
+        let e = EfficiencyRow {
+            method: Method::Trand,
+            state: State::T1,
+            sequences: 1,
+            timings_s: [
+                ("simulation_s".to_string(), 2.5),
+                ("total_s".to_string(), 4.0),
+            ]
+            .into(),
+            num_surfels: None,
+            peak_rss_mb: Some(812.4),
+        };
+        let md = efficiency_markdown(&[e], State::T1);
+        let lines: Vec<&str> = md.lines().collect();
+        assert_eq!(
+            lines[0],
+            "| | sequences | detection (s) | meshing (s) | simulation (s) | refinement (s) | total (s) | Gaussians | peak RSS (MB) |"
+        );
+        assert_eq!(lines[1].matches("---").count(), 9);
+        assert_eq!(
+            lines[2],
+            "| trand t1 | 1 | – | – | 2.50 | – | 4.00 | – | 812 |"
+        );
+    }
+}

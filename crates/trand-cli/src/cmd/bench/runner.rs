@@ -159,7 +159,11 @@ impl Runner<'_> {
         if step.state == State::T1 {
             let t0 = layout::result_dir(self.report, &step.sequence, step.method, State::T0);
             if !t0.join(trand_io::run_layout::METRICS_JSON).is_file() {
-                return fail(format!("its t=0 run {} is missing or failed", t0.display()));
+                let reason = format!("its t=0 run {} is missing or failed", t0.display());
+                // Still leave a log, so every failed step has one.
+                let _ = std::fs::create_dir_all(log.parent().expect("log has a parent"))
+                    .and_then(|()| std::fs::write(&log, format!("not run: {reason}\n")));
+                return fail(reason);
             }
         }
         let t = Instant::now();
