@@ -186,7 +186,8 @@ fn bad_input_is_a_clear_error() {
     let a = f.seq("seq_a");
     let out = f.path().join("r");
     let under_file = a.join("sequence.json/r");
-    let cases: [(Vec<&str>, &str); 5] = [
+    let cases: [(Vec<&str>, &str); 6] = [
+        (vec!["--synth", "0", "--out", s(&out)], "--synth 0"),
         (
             vec!["--data", "/no/such/seq", "--out", s(&out)],
             "--data /no/such/seq: no such folder",
@@ -289,4 +290,56 @@ fn every_image_and_link_of_the_report_exists() {
         index.contains("<td>trand t0</td><td>0.0050</td>"),
         "{index}"
     );
+}
+
+#[test]
+fn resuming_with_other_reconstruct_settings_is_refused() {
+    let f = Fixture::new("bench-settings");
+    let out = f.path().join("report");
+    let a = f.seq("seq_a");
+    let run = |it: &str| {
+        f.trand(
+            &[
+                "bench",
+                "--data",
+                s(&a),
+                "--out",
+                s(&out),
+                "--methods",
+                "trand",
+                "--iterations",
+                it,
+            ],
+            "",
+        )
+    };
+    assert!(run("50").status.success());
+    let n = f.calls().len();
+    let o = run("60");
+    assert!(!o.status.success());
+    let msg = text(&o);
+    assert!(
+        msg.contains("bench.json") && msg.contains("settings") && msg.contains("new --out"),
+        "{msg}"
+    );
+    assert_eq!(f.calls().len(), n);
+    assert!(run("50").status.success());
+    assert_eq!(f.calls().len(), n, "same settings resume, all cached");
+}
+
+#[test]
+fn merge_refuses_a_folder_that_is_not_a_shard_before_writing() {
+    let f = Fixture::new("bench-merge-bad");
+    let out = f.path().join("merged");
+    let o = f.trand(
+        &["bench", "merge", "--out", s(&out), s(&f.seq("seq_a"))],
+        "",
+    );
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("has no bench.json (not a bench folder)"),
+        "{}",
+        text(&o)
+    );
+    assert!(!out.exists());
 }

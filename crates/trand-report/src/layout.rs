@@ -86,6 +86,19 @@ pub struct RunSettings {
     pub seed: Option<u64>,
 }
 
+impl std::fmt::Display for RunSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let show = |v: Option<String>| v.unwrap_or_else(|| "default".into());
+        write!(
+            f,
+            "--iterations {}, --scale {}, --seed {}",
+            show(self.iterations.map(|v| v.to_string())),
+            show(self.scale.map(|v| v.to_string())),
+            show(self.seed.map(|v| v.to_string()))
+        )
+    }
+}
+
 /// How a sequence got into the bench.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase", tag = "kind")]
@@ -144,7 +157,7 @@ impl Manifest {
                 path: other_path.join(MANIFEST),
                 field: "settings".into(),
                 reason: format!(
-                    "{:?} differ from {:?} of the report; use a new --out for other settings",
+                    "({}) differ from the report's ({}); use a new --out for other settings",
                     other.settings, self.settings
                 ),
             });

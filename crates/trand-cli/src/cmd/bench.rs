@@ -229,6 +229,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let out = a.out.context("--out is required")?;
     let bin = trand_bin(a.trand_bin)?;
     let sequences = match a.synth {
+        Some(0) => anyhow::bail!("--synth 0: benchmark at least one sequence"),
         Some(n) => data::synth_entries(n, a.synth_preset),
         None => data::folder_entries(&a.data)?,
     };

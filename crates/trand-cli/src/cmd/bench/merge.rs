@@ -87,15 +87,16 @@ fn merge_runs(shard: &Path, out: &Path) -> anyhow::Result<usize> {
     Ok(n)
 }
 
-/// Merges the shards into `out` and rebuilds the tables; returns the manifest.
+/// Merges the shards into `out` and rebuilds the tables; returns the manifest. Every shard is checked
+/// (a bench folder, not `out`, settings and sequences agreeing) before anything is written.
 pub fn merge(out: &Path, shards: &[PathBuf]) -> anyhow::Result<(Manifest, trand_report::Tables)> {
-    super::prepare_out(out)?;
     let out_abs = std::path::absolute(out).with_context(|| format!("--out {}", out.display()))?;
     let mut manifest: Option<Manifest> = if out.join(layout::MANIFEST).is_file() {
         Some(Manifest::read(out)?)
     } else {
         None
     };
+    let mut shard_manifests = Vec::with_capacity(shards.len());
     for shard in shards {
         let abs =
             std::path::absolute(shard).with_context(|| format!("shard {}", shard.display()))?;
@@ -115,6 +116,10 @@ pub fn merge(out: &Path, shards: &[PathBuf]) -> anyhow::Result<(Manifest, trand_
             None => manifest = Some(m.clone()),
             Some(acc) => acc.union(&m, shard)?,
         }
+        shard_manifests.push(m);
+    }
+    super::prepare_out(out)?;
+    for (shard, m) in shards.iter().zip(&shard_manifests) {
         for e in &m.sequences {
             if matches!(e.source, SequenceSource::Synth { .. }) && e.data.is_relative() {
                 let (src, dst) = (shard.join(&e.data), out.join(&e.data));
