@@ -21,6 +21,8 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// t=0: object-aware 2DGS reconstruction from the training views.
+    Reconstruct(cmd::reconstruct::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
     Eval(cmd::eval::Args),
 }
@@ -35,6 +37,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
+        Command::Reconstruct(a) => cmd::reconstruct::run(a),
         Command::Eval(a) => cmd::eval::run(a),
     };
     match result {

@@ -234,6 +234,18 @@ pub fn random_init(
     };
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
     let points = slab_points(&bounds, cfg.num_volume, cfg.num_per_face, &mut rng);
+    surfels_from_points(points, cfg, sh_degree, num_objects, &mut rng)
+}
+
+/// Initial surfels at `points`: scales from the 3 nearest neighbours, random quaternions in `[0, 1)⁴`,
+/// opacity `cfg.opacity`, grey colour and mask colour, uniform object logits.
+pub fn surfels_from_points(
+    points: Vec<[f32; 3]>,
+    cfg: &InitConfig,
+    sh_degree: u32,
+    num_objects: usize,
+    rng: &mut Pcg64,
+) -> Result<Surfels, InitError> {
     let n = points.len();
     let mut s = Surfels::new(sh_degree, num_objects)?;
     let scales = knn_log_scales(&points);

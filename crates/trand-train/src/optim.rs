@@ -1,7 +1,7 @@
 //! Adam over [`Surfels`] with one learning rate per [`ParamGroup`], and the learning-rate schedules of
 //! 3DGS/2DGS/TRAN-D.
 //!
-//! Adam (Kingma & Ba), as `torch.optim.Adam` computes it: with step count t (shared by all groups),
+//! Adam (Kingma & Ba), as `torch.optim.Adam` computes it: with the group's step count t,
 //!
 //! `m ← β1 m + (1 − β1) g`, `v ← β2 v + (1 − β2) g²`,
 //! `θ ← θ − (lr / (1 − β1ᵗ)) · m / (√v / √(1 − β2ᵗ) + ε)`,
@@ -9,7 +9,7 @@
 //! β1 = 0.9, β2 = 0.999, **ε = 1e-15** (3DGS's choice: the tiny ε lets parameters with tiny gradients still
 //! move at the full learning rate). The moments are stored as `Surfels`-shaped buffers so densification can
 //! keep them aligned with the parameters: rows of new surfels start at zero, pruned rows are dropped, and
-//! the step count is kept (as the reference's optimiser-state surgery does).
+//! the step counts are kept (as the reference's optimiser-state surgery does).
 //!
 //! Schedules: constant, or log-linear (`get_expon_lr_func` without delay):
 //! `lr(s) = exp((1 − τ) ln a + τ ln b)`, `τ = clip(s / max_steps, 0, 1)`.
@@ -141,8 +141,10 @@ pub struct Adam {
     pub m: Surfels,
     /// Second moments, shaped like the parameters.
     pub v: Surfels,
-    /// Steps taken (shared by all groups, kept through densification).
-    pub steps: u64,
+    /// Steps taken per group (index: [`group_index`]), kept through densification. They differ only when
+    /// a group was left out of a step ([`Adam::step_groups`]), as PyTorch's per-parameter counts do when
+    /// a parameter has no gradient.
+    pub steps: [u64; 9],
 }
 
 impl Adam {
@@ -152,7 +154,7 @@ impl Adam {
             params,
             m: like.zeros_like(),
             v: like.zeros_like(),
-            steps: 0,
+            steps: [0; 9],
         }
     }
 
@@ -164,8 +166,20 @@ impl Adam {
         self.m.is_empty()
     }
 
+    /// Steps taken by a group.
+    pub fn steps_of(&self, g: ParamGroup) -> u64 {
+        self.steps[group_index(g)]
+    }
+
     /// One Adam step on every group with its learning rate.
     pub fn step(&mut self, params: &mut Surfels, grads: &Surfels, lr: &GroupLr) {
+        self.step_groups(params, grads, lr, &ParamGroup::ALL);
+    }
+
+    /// One Adam step on the listed groups only; the others (parameters, moments, step counts) are left
+    /// untouched. The reference skips a group whose tensor was replaced in this iteration (it has no
+    /// gradient), e.g. the opacity right after an opacity reset.
+    pub fn step_groups(&mut self, params: &mut Surfels, grads: &Surfels, lr: &GroupLr, groups: &[ParamGroup]) {
         assert_eq!(
             params.len(),
             self.m.len(),
@@ -174,14 +188,9 @@ impl Adam {
             params.len()
         );
         assert_eq!(grads.len(), params.len(), "gradient rows");
-        self.steps += 1;
-        let t = self.steps as i32;
         let AdamParams { beta1, beta2, eps } = self.params;
-        let bc1 = 1.0 - beta1.powi(t);
-        let bc2_sqrt = (1.0 - beta2.powi(t)).sqrt();
         let (b1, b2) = (beta1 as f32, beta2 as f32);
         let (ob1, ob2) = ((1.0 - beta1) as f32, (1.0 - beta2) as f32);
-        let inv_bc2_sqrt = (1.0 / bc2_sqrt) as f32;
         let eps = eps as f32;
         let grad_groups = grads.groups();
         for (((g, p), (_, m)), ((_, v), (gg, gr))) in params
@@ -192,6 +201,14 @@ impl Adam {
         {
             debug_assert_eq!(g, gg);
             assert_eq!(p.len(), gr.len(), "gradient of {} has the wrong length", g.name());
+            if !groups.contains(&g) {
+                continue;
+            }
+            let count = &mut self.steps[group_index(g)];
+            *count += 1;
+            let t = i32::try_from(*count).unwrap_or(i32::MAX);
+            let bc1 = 1.0 - beta1.powi(t);
+            let inv_bc2_sqrt = (1.0 / (1.0 - beta2.powi(t)).sqrt()) as f32;
             let step_size = (lr.get(g) / bc1) as f32;
             p.par_chunks_mut(CHUNK)
                 .zip(m.par_chunks_mut(CHUNK))
@@ -303,7 +320,7 @@ mod tests {
             "{} vs {expected}",
             p.means[0][0]
         );
-        assert_eq!(adam.steps, 2);
+        assert_eq!(adam.steps, [2; 9]);
     }
 
     #[test]
@@ -343,6 +360,25 @@ mod tests {
         adam.reset_group(ParamGroup::Opacity);
         assert!(adam.m.opacity_logits.iter().all(|&x| x == 0.0));
         assert!((adam.m.means[0][0] - 0.1).abs() < 1e-7);
-        assert_eq!(adam.steps, 1);
+        assert_eq!(adam.steps_of(ParamGroup::Means), 1);
+    }
+
+    #[test]
+    fn skipped_groups_keep_parameters_moments_and_step_count() {
+        let mut p = two_surfels();
+        let mut g = p.zeros_like();
+        g.means[0][0] = 1.0;
+        g.opacity_logits[0] = 1.0;
+        let mut adam = Adam::new(&p, AdamParams::default());
+        let p0 = p.clone();
+        let others: Vec<ParamGroup> = ParamGroup::ALL.into_iter().filter(|&x| x != ParamGroup::Opacity).collect();
+        adam.step_groups(&mut p, &g, &GroupLr::uniform(0.01), &others);
+        assert_eq!(p.opacity_logits, p0.opacity_logits);
+        assert_eq!(adam.m.opacity_logits, vec![0.0, 0.0]);
+        assert_eq!((adam.steps_of(ParamGroup::Opacity), adam.steps_of(ParamGroup::Means)), (0, 1));
+        assert_ne!(p.means, p0.means);
+        // The next full step is the opacity group's first: bias-corrected to exactly −lr·sign(g).
+        adam.step(&mut p, &g, &GroupLr::uniform(0.01));
+        assert!((p.opacity_logits[0] - (p0.opacity_logits[0] - 0.01)).abs() < 1e-7);
     }
 }

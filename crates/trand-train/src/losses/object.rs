@@ -22,6 +22,9 @@
 //! vanishes because the deviations sum to zero). Centres are members, so they receive gradient through
 //! both terms. A zero distance (the centre as its own neighbour) has zero gradient, as in PyTorch.
 //!
+//! Cost: one FPS run per object serves every level (each prefix of an FPS sequence is the FPS of that
+//! length), and kNN scans the object's contiguous member positions keeping a sorted list of the K best.
+//!
 //! The discrete choices (members, FPS centres, neighbour lists, nearest other centre) are made once by
 //! [`select`] and then held fixed by [`evaluate`], which is what the finite-difference tests perturb.
 
@@ -107,6 +110,18 @@ pub struct ObjectLoss<R> {
     pub objects_per_level: Vec<usize>,
 }
 
+impl<R: Real> ObjectLoss<R> {
+    /// Adds `weight · grad` to a position gradient (e.g. `grads.means` of the whole step).
+    pub fn add_scaled_to(&self, means_grad: &mut [[R; 3]], weight: R) {
+        assert_eq!(means_grad.len(), self.grad.len(), "position gradient length");
+        for (o, g) in means_grad.iter_mut().zip(&self.grad) {
+            for k in 0..3 {
+                o[k] += weight * g[k];
+            }
+        }
+    }
+}
+
 #[inline]
 fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
     let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
@@ -124,11 +139,13 @@ pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: 
     let thr = R::from_f64(threshold);
     let owner: Vec<Option<usize>> = obj_logits
         .par_chunks(num_objects)
-        .map(|l| {
-            let mut p = vec![R::ZERO; num_objects];
-            softmax(l, &mut p);
-            p.iter().position(|&v| v > thr)
-        })
+        .map_init(
+            || vec![R::ZERO; num_objects],
+            |p, l| {
+                softmax(l, p);
+                p.iter().position(|&v| v > thr)
+            },
+        )
         .collect();
     let mut out = vec![Vec::new(); num_objects];
     for (i, o) in owner.into_iter().enumerate() {
@@ -139,21 +156,17 @@ pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: 
     out
 }
 
-/// Farthest-point sampling of `count` points among `points[idx[..]]`: starts at `idx[0]`, then repeatedly
-/// takes the point with the largest squared distance to the chosen set (lowest position on ties).
-/// Returns positions in `idx`. Requires `count ≤ idx.len()`.
-pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], idx: &[usize], count: usize) -> Vec<usize> {
-    assert!(count <= idx.len(), "FPS of {count} from {} points", idx.len());
+/// Farthest-point sampling of `count` of `points`: starts at point 0, then repeatedly takes the point with
+/// the largest squared distance to the chosen set (lowest index on ties). Each prefix of the result is the
+/// FPS of that length. Requires `count ≤ points.len()`.
+pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], count: usize) -> Vec<usize> {
+    assert!(count <= points.len(), "FPS of {count} from {} points", points.len());
     if count == 0 {
         return Vec::new();
     }
-    let mut min_d = vec![R::ZERO; idx.len()];
     let mut chosen = Vec::with_capacity(count);
-    let mut last = 0usize;
-    chosen.push(last);
-    for (m, &i) in min_d.iter_mut().zip(idx) {
-        *m = dist2(&points[i], &points[idx[last]]);
-    }
+    chosen.push(0);
+    let mut min_d: Vec<R> = points.iter().map(|p| dist2(p, &points[0])).collect();
     while chosen.len() < count {
         let mut best = 0usize;
         let mut best_d = -R::ONE;
@@ -163,59 +176,57 @@ pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], idx: &[usize], count:
                 best_d = d;
             }
         }
-        last = best;
-        chosen.push(last);
-        let c = points[idx[last]];
-        for (m, &i) in min_d.iter_mut().zip(idx) {
-            let d = dist2(&points[i], &c);
-            if d < *m {
-                *m = d;
-            }
+        chosen.push(best);
+        let c = points[best];
+        for (m, p) in min_d.iter_mut().zip(points) {
+            *m = m.min(dist2(p, &c));
         }
     }
     chosen
 }
 
-/// The `k` points of `points[idx[..]]` nearest to `query` (squared Euclidean, ties by position), nearest
-/// first. Returns positions in `idx`. Requires `k ≤ idx.len()`.
-pub fn k_nearest<R: Real>(points: &[[R; 3]], idx: &[usize], query: &[R; 3], k: usize) -> Vec<usize> {
-    assert!(k <= idx.len(), "{k}-NN among {} points", idx.len());
+/// The `k` of `points` nearest to `query` (squared Euclidean, ties to the lower index), nearest first.
+/// Points at a non-finite distance are never chosen, so fewer than `k` may come back.
+pub fn k_nearest<R: Real>(points: &[[R; 3]], query: &[R; 3], k: usize) -> Vec<usize> {
     if k == 0 {
         return Vec::new();
     }
-    let mut d: Vec<(R, usize)> = idx
-        .iter()
-        .enumerate()
-        .map(|(j, &i)| (dist2(&points[i], query), j))
-        .collect();
-    let cmp = |a: &(R, usize), b: &(R, usize)| {
-        a.0.partial_cmp(&b.0)
-            .unwrap_or(std::cmp::Ordering::Equal)
-            .then(a.1.cmp(&b.1))
-    };
-    if k < d.len() {
-        d.select_nth_unstable_by(k - 1, cmp);
-        d.truncate(k);
+    // A sorted list of the k best (distance, index) pairs; most candidates are rejected by one comparison
+    // with the current k-th. A later equal distance does not displace an earlier index.
+    let mut best: Vec<(R, usize)> = Vec::with_capacity(k + 1);
+    for (j, p) in points.iter().enumerate() {
+        let d = dist2(p, query);
+        if (best.len() == k && d >= best[k - 1].0) || !d.is_finite() {
+            continue;
+        }
+        let at = best.partition_point(|&(bd, _)| bd <= d);
+        best.insert(at, (d, j));
+        best.truncate(k);
     }
-    d.sort_unstable_by(cmp);
-    d.into_iter().map(|(_, j)| j).collect()
+    best.into_iter().map(|(_, j)| j).collect()
 }
 
-/// Selection of one object at one level.
-fn select_level<R: Real>(points: &[[R; 3]], members: &[usize], level: ObjectLevel) -> Option<LevelSelection> {
-    let g = level.centres;
-    if g < 2 || members.len() < g || members.len() < level.neighbours {
+/// Selection of one object at one level, given the member positions (`local`, contiguous), their
+/// surfel indices and the members' FPS order (at least G long).
+fn select_level<R: Real>(
+    local: &[[R; 3]],
+    members: &[usize],
+    fps: &[usize],
+    level: ObjectLevel,
+) -> Option<LevelSelection> {
+    let (g, k) = (level.centres, level.neighbours);
+    if g < 2 || local.len() < g || local.len() < k || fps.len() < g {
         return None;
     }
-    let centres_local = farthest_point_sampling(points, members, g);
-    let centres: Vec<usize> = centres_local.iter().map(|&j| members[j]).collect();
-    let mut neighbours = Vec::with_capacity(g * level.neighbours);
-    for &c in &centres {
-        neighbours.extend(
-            k_nearest(points, members, &points[c], level.neighbours)
-                .into_iter()
-                .map(|j| members[j]),
-        );
+    let centres_pos = &fps[..g];
+    let centres: Vec<usize> = centres_pos.iter().map(|&j| members[j]).collect();
+    let mut neighbours = Vec::with_capacity(g * k);
+    for &c in centres_pos {
+        let nn = k_nearest(local, &local[c], k);
+        if nn.len() < k {
+            return None; // non-finite positions: no well-defined neighbourhood
+        }
+        neighbours.extend(nn.into_iter().map(|j| members[j]));
     }
     let nearest_centre = (0..g)
         .map(|a| {
@@ -225,7 +236,7 @@ fn select_level<R: Real>(points: &[[R; 3]], members: &[usize], level: ObjectLeve
                 if b == a {
                     continue;
                 }
-                let d = dist2(&points[centres[a]], &points[centres[b]]);
+                let d = dist2(&local[centres_pos[a]], &local[centres_pos[b]]);
                 if best == usize::MAX || d < best_d {
                     best = b;
                     best_d = d;
@@ -256,10 +267,27 @@ pub fn select<R: Real>(
         .enumerate()
         .skip(1)
         .filter(|(_, m)| !m.is_empty())
-        .map(|(channel, m)| ObjectSelection {
-            channel,
-            num_members: m.len(),
-            levels: params.levels.iter().map(|&l| select_level(points, &m, l)).collect(),
+        .map(|(channel, m)| {
+            // Contiguous member positions (no gather in the inner loops) and one FPS run for the largest
+            // G that fits: every level's centres are a prefix of it.
+            let local: Vec<[R; 3]> = m.iter().map(|&i| points[i]).collect();
+            let max_g = params
+                .levels
+                .iter()
+                .map(|l| l.centres)
+                .filter(|&g| g <= local.len())
+                .max()
+                .unwrap_or(0);
+            let fps = farthest_point_sampling(&local, max_g);
+            ObjectSelection {
+                channel,
+                num_members: m.len(),
+                levels: params
+                    .levels
+                    .iter()
+                    .map(|&l| select_level(&local, &m, &fps, l))
+                    .collect(),
+            }
         })
         .collect()
 }
@@ -369,7 +397,9 @@ mod tests {
     fn fps_matches_brute_force_definition() {
         let p = cloud(30, 200);
         let idx: Vec<usize> = (0..200).step_by(2).collect();
-        let got = farthest_point_sampling(&p, &idx, 20);
+        let sub: Vec<[f64; 3]> = idx.iter().map(|&i| p[i]).collect();
+        let got = farthest_point_sampling(&sub, 20);
+        assert_eq!(farthest_point_sampling(&sub, 7), got[..7].to_vec(), "prefix property");
         let mut chosen = vec![0usize];
         while chosen.len() < 20 {
             let score = |j: usize| {
@@ -387,9 +417,8 @@ mod tests {
     #[test]
     fn knn_matches_full_sort_and_contains_the_query_point() {
         let p = cloud(31, 300);
-        let idx: Vec<usize> = (0..300).collect();
         for q in [0usize, 17, 299] {
-            let got = k_nearest(&p, &idx, &p[q], 16);
+            let got = k_nearest(&p, &p[q], 16);
             let mut all: Vec<usize> = (0..300).collect();
             all.sort_by(|&a, &b| {
                 dist2(&p[a], &p[q])

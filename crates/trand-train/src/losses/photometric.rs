@@ -57,25 +57,36 @@ pub fn l1<R: Real>(pred: &[R], gt: &[R]) -> (R, Vec<R>) {
     }
     let inv_n = R::ONE / R::from_f64(pred.len() as f64);
     let mut grad = vec![R::ZERO; pred.len()];
-    grad.par_chunks_mut(L1_CHUNK)
+    // One pass: gradient and per-chunk |·| sums (8 interleaved accumulators, then the chunks in order:
+    // deterministic regardless of the thread count, and not bound by one add chain).
+    let partial: Vec<R> = grad
+        .par_chunks_mut(L1_CHUNK)
         .zip(pred.par_chunks(L1_CHUNK))
         .zip(gt.par_chunks(L1_CHUNK))
-        .for_each(|((o, p), g)| {
-            for ((o, &p), &g) in o.iter_mut().zip(p).zip(g) {
-                *o = if p > g {
-                    inv_n
-                } else if p < g {
-                    -inv_n
-                } else {
-                    R::ZERO
-                };
+        .map(|((o, p), g)| {
+            // Fixed-width lanes so the loop vectorises (selects become blends; random signs would
+            // defeat a branch predictor).
+            let sign = |p: R, g: R| {
+                let up = if p > g { inv_n } else { R::ZERO };
+                let down = if p < g { inv_n } else { R::ZERO };
+                up - down
+            };
+            let mut acc = [R::ZERO; 8];
+            let mut oc = o.chunks_exact_mut(8);
+            let (mut pc, mut gc) = (p.chunks_exact(8), g.chunks_exact(8));
+            for ((o, p), g) in (&mut oc).zip(&mut pc).zip(&mut gc) {
+                for l in 0..8 {
+                    o[l] = sign(p[l], g[l]);
+                    acc[l] += (p[l] - g[l]).abs();
+                }
             }
-        });
-    // Row-sized chunks summed in order: deterministic regardless of the thread count.
-    let partial: Vec<R> = pred
-        .par_chunks(L1_CHUNK)
-        .zip(gt.par_chunks(L1_CHUNK))
-        .map(|(p, g)| p.iter().zip(g).fold(R::ZERO, |a, (&p, &g)| a + (p - g).abs()))
+            let mut tail = R::ZERO;
+            for ((o, &p), &g) in oc.into_remainder().iter_mut().zip(pc.remainder()).zip(gc.remainder()) {
+                *o = sign(p, g);
+                tail += (p - g).abs();
+            }
+            acc.iter().fold(tail, |a, &b| a + b)
+        })
         .collect();
     let sum = partial.into_iter().fold(R::ZERO, |a, b| a + b);
     (sum * inv_n, grad)
@@ -112,15 +123,81 @@ fn axpy<R: Real>(a: R, src: &[R], dst: &mut [R]) {
     }
 }
 
+/// Columns per register block of the filters: 5 quantities × 8 lanes of accumulators fit the SSE
+/// register file, so the 11 taps accumulate in registers and each output is stored once.
+const BLOCK: usize = 8;
+
 /// Horizontal zero-padded correlation of a padded row (`src.len() = W + 2r`, zeros at both ends)
-/// written to `dst` (`W` values). Written as shifted axpys so the compiler vectorises it.
+/// written to `dst` (`W` values).
 #[inline]
 fn hconv<R: Real>(k: &[R; SSIM_WINDOW], src: &[R], dst: &mut [R]) {
     let w = dst.len();
-    dst.fill(R::ZERO);
-    for (t, &kt) in k.iter().enumerate() {
-        for (d, &s) in dst.iter_mut().zip(&src[t..t + w]) {
-            *d += kt * s;
+    debug_assert_eq!(src.len(), w + 2 * SSIM_RADIUS);
+    let mut x = 0;
+    while x + BLOCK <= w {
+        let mut acc = [R::ZERO; BLOCK];
+        for (t, &kt) in k.iter().enumerate() {
+            let s: &[R; BLOCK] = src[x + t..x + t + BLOCK].try_into().expect("block");
+            for l in 0..BLOCK {
+                acc[l] += kt * s[l];
+            }
+        }
+        dst[x..x + BLOCK].copy_from_slice(&acc);
+        x += BLOCK;
+    }
+    for (i, d) in dst.iter_mut().enumerate().skip(x) {
+        let mut acc = R::ZERO;
+        for (t, &kt) in k.iter().enumerate() {
+            acc += kt * src[i + t];
+        }
+        *d = acc;
+    }
+}
+
+/// Vertical zero-padded correlation at output row `row` of the five SSIM quantities
+/// `x, y, x², y², xy` of the planes `xp, yp` (`W` wide, `H` high), written into the centres of the
+/// padded rows `out[q][r..r + W]` (the pads stay zero).
+#[inline]
+fn vconv5<R: Real>(k: &[R; SSIM_WINDOW], xp: &[R], yp: &[R], w: usize, h: usize, row: usize, out: &mut [&mut [R]; 5]) {
+    let r = SSIM_RADIUS;
+    let t0 = r.saturating_sub(row);
+    let t1 = SSIM_WINDOW.min(h + r - row);
+    let mut x = 0;
+    while x + BLOCK <= w {
+        let mut acc = [[R::ZERO; BLOCK]; 5];
+        for (t, &kt) in k.iter().enumerate().take(t1).skip(t0) {
+            let base = (row + t - r) * w + x;
+            let xs: &[R; BLOCK] = xp[base..base + BLOCK].try_into().expect("block");
+            let ys: &[R; BLOCK] = yp[base..base + BLOCK].try_into().expect("block");
+            for l in 0..BLOCK {
+                let (a, b) = (xs[l], ys[l]);
+                let (ka, kb) = (kt * a, kt * b);
+                acc[0][l] += ka;
+                acc[1][l] += kb;
+                acc[2][l] += ka * a;
+                acc[3][l] += kb * b;
+                acc[4][l] += ka * b;
+            }
+        }
+        for (o, a) in out.iter_mut().zip(&acc) {
+            o[r + x..r + x + BLOCK].copy_from_slice(a);
+        }
+        x += BLOCK;
+    }
+    for i in x..w {
+        let mut acc = [R::ZERO; 5];
+        for (t, &kt) in k.iter().enumerate().take(t1).skip(t0) {
+            let idx = (row + t - r) * w + i;
+            let (a, b) = (xp[idx], yp[idx]);
+            let (ka, kb) = (kt * a, kt * b);
+            acc[0] += ka;
+            acc[1] += kb;
+            acc[2] += ka * a;
+            acc[3] += kb * b;
+            acc[4] += ka * b;
+        }
+        for (o, &a) in out.iter_mut().zip(&acc) {
+            o[r + i] = a;
         }
     }
 }
@@ -157,26 +234,9 @@ pub fn ssim<R: Real>(pred: &[R], gt: &[R], width: usize, height: usize, channels
             let (vy, rest) = rest.split_at_mut(w + 2 * r);
             let (vxx, rest) = rest.split_at_mut(w + 2 * r);
             let (vyy, vxy) = rest.split_at_mut(w + 2 * r);
-            for (t, &kt) in k.iter().enumerate() {
-                let iy = row as isize + t as isize - r as isize;
-                if iy < 0 || iy >= h as isize {
-                    continue;
-                }
-                let base = iy as usize * w;
-                let (xs, ys) = (&xp[base..base + w], &yp[base..base + w]);
-                // One simple loop per quantity: each is an axpy the compiler vectorises.
-                axpy(kt, xs, &mut vx[r..r + w]);
-                axpy(kt, ys, &mut vy[r..r + w]);
-                for ((o, &a), &b) in vxx[r..r + w].iter_mut().zip(xs).zip(xs) {
-                    *o += kt * a * b;
-                }
-                for ((o, &a), &b) in vyy[r..r + w].iter_mut().zip(ys).zip(ys) {
-                    *o += kt * a * b;
-                }
-                for ((o, &a), &b) in vxy[r..r + w].iter_mut().zip(xs).zip(ys) {
-                    *o += kt * a * b;
-                }
-            }
+            let mut vs = [vx, vy, vxx, vyy, vxy];
+            vconv5(&k, xp, yp, w, h, row, &mut vs);
+            let [vx, vy, vxx, vyy, vxy] = vs;
             let mut f = vec![R::ZERO; 5 * w];
             let (mx, rest) = f.split_at_mut(w);
             let (my, rest) = rest.split_at_mut(w);

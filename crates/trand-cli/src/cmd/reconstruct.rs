@@ -1,0 +1,225 @@
+//! `trand reconstruct`: the t = 0 object-aware 2DGS reconstruction of a sequence.
+//!
+//! Progress bar with loss and surfel count. A checkpoint (`OUT.checkpoint/`: surfels PLY and the
+//! iteration) is written every `--checkpoint-every` iterations and on Ctrl-C; `--resume` continues from
+//! it (Adam moments restart from zero). The run folder appears only when the run is complete.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
+use trand_io::{read_sequence_with, LoadOptions};
+use trand_pipeline::{reconstruct, InitMode, Method, PipelineError, ReconstructOptions};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Sequence folder (BOP layout, the authors' transforms_sparse_*.json, or nerfstudio transforms.json).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output run folder (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Training views: 3, 6 (the paper) or 12 ring views.
+    #[arg(long)]
+    pub views: Option<u32>,
+    /// trand, no-object-loss (ablation) or plain-2dgs (baseline).
+    #[arg(long, value_parser = parse_method)]
+    pub method: Option<Method>,
+    /// TOML file with any of the options (see `config.toml` of a finished run for every key).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[arg(long)]
+    pub iterations: Option<u32>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Train on images downsampled by this integer factor (evaluation stays at full resolution).
+    #[arg(long)]
+    pub downsample: Option<u32>,
+    /// Initialisation: visual-hull (default) or slab (the authors' random slab).
+    #[arg(long, value_parser = parse_init)]
+    pub init: Option<InitMode>,
+    /// Object channels K, background included (default 15).
+    #[arg(long)]
+    pub objects: Option<usize>,
+    /// Continue from `OUT.checkpoint/`.
+    #[arg(long)]
+    pub resume: bool,
+    #[arg(long, default_value_t = 100)]
+    pub checkpoint_every: u32,
+}
+
+fn parse_method(s: &str) -> Result<Method, String> {
+    match s {
+        "trand" => Ok(Method::Trand),
+        "no-object-loss" => Ok(Method::NoObjectLoss),
+        "plain-2dgs" => Ok(Method::Plain2dgs),
+        _ => Err(format!("unknown method `{s}` (trand, no-object-loss, plain-2dgs)")),
+    }
+}
+
+fn parse_init(s: &str) -> Result<InitMode, String> {
+    match s {
+        "visual-hull" => Ok(InitMode::VisualHull),
+        "slab" => Ok(InitMode::Slab),
+        _ => Err(format!("unknown init `{s}` (visual-hull, slab)")),
+    }
+}
+
+/// Options from the config file, then the flags.
+pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
+    let mut o = match &a.config {
+        Some(p) => {
+            let s = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            toml::from_str::<ReconstructOptions>(&s).with_context(|| format!("{}: invalid configuration", p.display()))?
+        }
+        None => ReconstructOptions::default(),
+    };
+    if let Some(v) = a.views {
+        o.views = v;
+    }
+    if let Some(m) = a.method {
+        o.method = m;
+    }
+    if let Some(n) = a.iterations {
+        o.train.iterations = n;
+    }
+    if let Some(s) = a.seed {
+        o.train.seed = s;
+        o.init.seed = s;
+    }
+    if let Some(d) = a.downsample {
+        if d == 0 {
+            bail!("--downsample must be at least 1");
+        }
+        o.downsample = d;
+    }
+    if let Some(i) = a.init {
+        o.init_mode = i;
+    }
+    if let Some(k) = a.objects {
+        o.num_objects = k;
+    }
+    Ok(o)
+}
+
+fn checkpoint_dir(out: &Path) -> PathBuf {
+    let mut s = out.as_os_str().to_owned();
+    s.push(".checkpoint");
+    PathBuf::from(s)
+}
+
+fn write_checkpoint(dir: &Path, surfels: &trand_core::Surfels, iteration: u32) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    trand_io::write_surfels_ply(&dir.join("surfels.ply"), surfels)?;
+    let j = serde_json::json!({ "iteration": iteration });
+    trand_io::write_atomic(&dir.join("checkpoint.json"), j.to_string().as_bytes())?;
+    Ok(())
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    if a.out.exists() {
+        bail!("{}: output folder already exists", a.out.display());
+    }
+    let opts = options(&a)?;
+    let ckpt = checkpoint_dir(&a.out);
+    let start = if a.resume {
+        let j: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(ckpt.join("checkpoint.json")).with_context(|| format!("{}: no checkpoint to resume", ckpt.display()))?,
+        )
+        .with_context(|| format!("{}/checkpoint.json: malformed", ckpt.display()))?;
+        let it = j["iteration"].as_u64().with_context(|| format!("{}/checkpoint.json: field `iteration`", ckpt.display()))? as u32;
+        let s = trand_io::read_surfels_ply(&ckpt.join("surfels.ply"))?;
+        eprintln!("resuming from iteration {it} ({} surfels)", s.len());
+        Some((s, it))
+    } else {
+        None
+    };
+    let seq = read_sequence_with(&a.data, &LoadOptions { object_channels: Some(opts.num_objects), ..Default::default() })
+        .with_context(|| format!("reading {}", a.data.display()))?;
+
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let c = cancel.clone();
+        let _ = ctrlc::set_handler(move || c.store(true, Ordering::SeqCst));
+    }
+    let total = opts.train.iterations as u64;
+    let pb = ProgressBar::new(total);
+    pb.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} it  {msg}  eta {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let every = a.checkpoint_every.max(1);
+    let mut last_ckpt = Ok(());
+    let mut on_step = |r: &trand_pipeline::StepReport, s: &trand_core::Surfels| {
+        pb.set_position((r.iteration - opts.train.start_iteration) as u64);
+        pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
+        if r.iteration % every == 0 || cancel.load(Ordering::SeqCst) {
+            last_ckpt = write_checkpoint(&ckpt, s, r.iteration);
+        }
+    };
+    let rec = match reconstruct(&seq, &opts, start, &mut on_step, &cancel) {
+        Ok(r) => r,
+        Err(PipelineError::Interrupted(it)) => {
+            pb.abandon();
+            last_ckpt?;
+            eprintln!("interrupted at iteration {it}; checkpoint in {} (continue with --resume)", ckpt.display());
+            std::process::exit(130);
+        }
+        Err(e) => return Err(e).with_context(|| format!("reconstructing {}", a.data.display())),
+    };
+    pb.finish_and_clear();
+
+    let t_render = Instant::now();
+    let settings = trand_render::RenderSettings {
+        background: opts.train.background,
+        near: opts.train.near as f64,
+        sh_degree: Some(opts.train.sh_degree),
+        ..Default::default()
+    };
+    let renders = trand_pipeline::outputs::render_views(&rec.surfels, &seq.test_t0, &settings)?;
+    let render_s = t_render.elapsed().as_secs_f64();
+    let run_json = serde_json::json!({
+        "state": "t0",
+        "method": opts.method,
+        "views": opts.views,
+        "data": a.data.canonicalize().unwrap_or(a.data.clone()),
+        "train_views": rec.train_views,
+        "object_channels": rec.channels,
+        "timings": {
+            "preprocess_s": rec.preprocess_s,
+            "optimise_s": rec.optimise_s,
+            "total_s": rec.preprocess_s + rec.optimise_s,
+            "test_render_s": render_s,
+            "wall_s": t_all.elapsed().as_secs_f64(),
+        },
+        "initial_surfels": rec.initial_surfels,
+        "num_trained": rec.num_trained,
+        "num_surfels": rec.surfels.len(),
+        "loss_curve": rec.curve,
+        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
+        "threads": rayon::current_num_threads(),
+        "trand_version": env!("CARGO_PKG_VERSION"),
+    });
+    let config = toml::to_string(&opts).context("serialising the configuration")?;
+    trand_pipeline::outputs::write_run(&a.out, &run_json, &config, &rec.surfels, &renders)?;
+    let _ = std::fs::remove_dir_all(&ckpt);
+    println!(
+        "reconstructed {} in {:.1} s (preprocess {:.1} s, optimise {:.1} s): {} object surfels -> {}",
+        a.data.display(),
+        rec.preprocess_s + rec.optimise_s,
+        rec.preprocess_s,
+        rec.optimise_s,
+        rec.surfels.len(),
+        a.out.display()
+    );
+    if seq.test_t0.iter().all(|v| v.depth.is_some() && v.instance.is_some()) && !seq.test_t0.is_empty() {
+        let (_, m) = trand_eval::evaluate_run(&a.out, &a.data, Some(trand_io::State::T0))?;
+        print!("{}", trand_eval::table(&[("t0", &m)]));
+    }
+    Ok(())
+}

@@ -1,0 +1,94 @@
+//! Virtual cameras for depth fusion (TRAN-D §5.3): the caller renders depth from these views of
+//! the remaining objects and fuses them with [`crate::tsdf`].
+//!
+//! The authors fuse the t=1 test poses plus one camera under the table looking up (+z), which
+//! closes the objects' bottoms; [`ring_views`] gives the same kind of coverage without data
+//! poses: rings of cameras at given elevations around a centre, all looking at it, plus the
+//! camera from below.
+
+use glam::{DMat3, DVec3};
+use trand_core::{Camera, Intrinsics};
+
+/// Cameras on rings around `center` (world z up): for each elevation (radians above the
+/// horizontal plane through `center`), `n_azimuth` cameras at distance `radius`, evenly spaced
+/// in azimuth starting at +x, looking at `center` with world +z as image up; then one camera at
+/// `center − radius·ẑ` looking up along +z ([`below_view`]).
+pub fn ring_views(center: DVec3, radius: f64, elevations: &[f64], n_azimuth: usize, intrinsics: Intrinsics) -> Vec<Camera> {
+    let mut cams = Vec::with_capacity(elevations.len() * n_azimuth + 1);
+    for &el in elevations {
+        for a in 0..n_azimuth {
+            let az = std::f64::consts::TAU * a as f64 / n_azimuth as f64;
+            let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+            cams.push(Camera::look_at(intrinsics, center + radius * dir, center, DVec3::Z));
+        }
+    }
+    cams.push(below_view(center, radius, intrinsics));
+    cams
+}
+
+/// The camera under the table: at `center − radius·ẑ`, optical axis world +z. With the OpenCV
+/// frame (x right, y down, z forward) and image x = world x, the camera frame is the world
+/// frame: `R_w2c = I` (a proper rotation; the authors' synthetic pose, a reflection-looking
+/// `diag(1, −1, 1)` in their mixed OpenGL/OpenCV bookkeeping, also sits at z = −1 looking up).
+pub fn below_view(center: DVec3, radius: f64, intrinsics: Intrinsics) -> Camera {
+    let eye = center - DVec3::Z * radius;
+    let r_w2c = DMat3::IDENTITY;
+    Camera::from_glam(intrinsics, r_w2c, -(r_w2c * eye))
+}
+
+/// Least-squares point closest to all optical axes, `argmin_p Σ |(I − d dᵀ)(p − o)|²` over the
+/// cameras' centres `o` and forward directions `d` (the 2DGS/TRAN-D `focus_point_fn`). `None`
+/// when the axes are all parallel (the normal matrix is singular) or there are no cameras.
+pub fn focus_point(cameras: &[Camera]) -> Option<DVec3> {
+    let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
+    for c in cameras {
+        let d = c.forward();
+        let m = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * c.center();
+    }
+    (a.determinant().abs() > 1e-12).then(|| a.inverse() * b)
+}
+
+/// Smallest distance of a camera centre to [`focus_point`]: TRAN-D's scene radius, from which
+/// the fusion depth range (2·radius) and voxel size (2·radius / 256) follow.
+pub fn scene_radius(cameras: &[Camera]) -> Option<f64> {
+    let f = focus_point(cameras)?;
+    cameras.iter().map(|c| (c.center() - f).length()).min_by(f64::total_cmp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn focus_point_of_a_ring_is_its_center_and_radius_its_distance() {
+        let c = DVec3::new(0.2, 0.1, 0.03);
+        let cams = ring_views(c, 0.7, &[0.4, 0.8], 6, Intrinsics::centered(300.0, 64, 64));
+        assert!((focus_point(&cams).unwrap() - c).length() < 1e-9);
+        assert!((scene_radius(&cams).unwrap() - 0.7).abs() < 1e-9);
+        assert!(focus_point(&cams[..1]).is_none());
+    }
+
+    #[test]
+    fn every_ring_view_sees_the_center_on_its_principal_point() {
+        let k = Intrinsics::centered(300.0, 160, 120);
+        let c = DVec3::new(0.1, -0.2, 0.05);
+        let cams = ring_views(c, 0.6, &[0.3, 0.9], 8, k);
+        assert_eq!(cams.len(), 17);
+        for cam in &cams {
+            cam.validate().unwrap();
+            let (x, y, z) = cam.project(c).unwrap();
+            assert!((x - k.cx).abs() < 1e-9 && (y - k.cy).abs() < 1e-9 && (z - 0.6).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn below_view_looks_up() {
+        let cam = below_view(DVec3::ZERO, 1.0, Intrinsics::centered(300.0, 64, 64));
+        cam.validate().unwrap();
+        assert!((cam.center() - DVec3::new(0.0, 0.0, -1.0)).length() < 1e-12);
+        assert!((cam.forward() - DVec3::Z).length() < 1e-12);
+        assert!((cam.rotation().determinant() - 1.0).abs() < 1e-12);
+    }
+}

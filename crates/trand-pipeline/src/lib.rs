@@ -1,0 +1,39 @@
+//! TRAN-D's stages end to end, on top of the rasterizer (`trand-render`), the losses and optimiser
+//! (`trand-train`) and the readers (`trand-io`):
+//!
+//! * [`targets`]: per training view, the three images the surfels are fitted to — RGB with the
+//!   background blacked out, the colour-coded instance mask, and the K-channel one-hot object map.
+//! * [`trainer`]: one optimisation loop (render → losses → backward → Adam → densify), used at t = 0
+//!   and for the t = 1 refinement.
+//! * [`reconstruct`]: the t = 0 run from random initialisation, with the paper's ablations.
+//! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
+
+pub mod outputs;
+pub mod reconstruct;
+pub mod targets;
+pub mod trainer;
+
+pub use reconstruct::{reconstruct, InitMode, Method, ReconstructOptions, Reconstruction};
+pub use targets::{Supervision, TrainView};
+pub use trainer::{Trainer, StepReport};
+
+/// Errors of the pipeline, each naming what failed.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Io(#[from] trand_io::IoError),
+    #[error("rendering failed: {0}")]
+    Render(#[from] trand_render::RenderError),
+    #[error("initialisation failed: {0}")]
+    Init(#[from] trand_train::init::InitError),
+    #[error("invalid configuration: {0}")]
+    Config(#[from] trand_train::config::ConfigError),
+    #[error("view {view}: {what}")]
+    View { view: String, what: String },
+    #[error("{0}")]
+    Invalid(String),
+    #[error("interrupted at iteration {0}")]
+    Interrupted(u32),
+}
+
+pub type Result<T, E = PipelineError> = std::result::Result<T, E>;

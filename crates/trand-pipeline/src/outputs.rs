@@ -1,0 +1,104 @@
+//! The run folder: what `trand reconstruct` and `trand update` leave behind, and what `trand eval`,
+//! `trand bench` and the report read.
+//!
+//! ```text
+//! RUN/
+//!   run.json            state, method, timings, surfel counts, loss curve, object channels, …
+//!   config.toml         the effective configuration
+//!   surfels.ply         the kept surfels (2DGS/3DGS property names plus trand's object fields)
+//!   depth/{frame}.npy   float32 median depth of every test view (metres, 0 = nothing rendered)
+//!   depth/{frame}.png   the same in uint16 millimetres
+//!   objects/{frame}.png colour-coded argmax of the rendered object map (black = background)
+//! ```
+//! The folder is written under a temporary name and renamed at the end: an interrupted run leaves no
+//! half-written folder.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+use trand_core::Surfels;
+use trand_io::{write_depth_png_mm, write_npy_f32, write_rgb_png, write_surfels_ply, DepthMap, Image, RunDir, View};
+use trand_render::{render, Maps, RenderSettings};
+
+use crate::targets::palette;
+use crate::Result;
+
+/// Rendered outputs of one test view.
+pub struct TestRender {
+    pub frame: u32,
+    pub depth: DepthMap,
+    pub objects: Image<u8>,
+}
+
+/// Depth beyond `2 × radius` is clamped (official-code notes §6), with `radius` the smallest distance
+/// from a test camera to the point the test cameras look at.
+pub fn depth_clamp(views: &[View]) -> f32 {
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    match trand_train::init::focus_point(&cams) {
+        Ok(f) => (2.0 * cams.iter().map(|c| (c.center() - f).length()).fold(f64::INFINITY, f64::min)) as f32,
+        Err(_) => f32::INFINITY,
+    }
+}
+
+/// Renders the median depth and the object map of every view (full resolution).
+pub fn render_views(surfels: &Surfels, views: &[View], settings: &RenderSettings) -> Result<Vec<TestRender>> {
+    let clamp = depth_clamp(views);
+    let settings = RenderSettings { maps: Maps::RgbObjects, ..*settings };
+    views
+        .iter()
+        .map(|v| {
+            let out = render::<f32, _>(surfels, &v.camera, &settings)?;
+            let (w, h) = (out.width, out.height);
+            let depth: Vec<f32> = out.median.iter().map(|&d| d.min(clamp)).collect();
+            let k = out.num_objects;
+            let obj: Vec<u8> = out
+                .objects
+                .par_chunks(k)
+                .flat_map_iter(|p| {
+                    let (c, &m) = p.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("K ≥ 1");
+                    let col = if m > 0.5 { palette(c) } else { [0.0; 3] };
+                    col.map(|x| (x * 255.0).round() as u8)
+                })
+                .collect();
+            Ok(TestRender {
+                frame: v.frame,
+                depth: Image::from_vec(w, h, 1, depth).expect("sizes agree"),
+                objects: Image::from_vec(w, h, 3, obj).expect("sizes agree"),
+            })
+        })
+        .collect()
+}
+
+/// Writes a complete run folder at `target` (which must not exist).
+pub fn write_run(
+    target: &Path,
+    run_json: &serde_json::Value,
+    config_toml: &str,
+    surfels: &Surfels,
+    renders: &[TestRender],
+) -> Result<()> {
+    let dir = RunDir::create(target)?;
+    let p = dir.path();
+    let io = |path: &Path, e: std::io::Error| trand_io::IoError::io(path, e);
+    std::fs::create_dir_all(p.join("depth")).map_err(|e| io(&p.join("depth"), e))?;
+    std::fs::create_dir_all(p.join("objects")).map_err(|e| io(&p.join("objects"), e))?;
+    write_surfels_ply(&p.join("surfels.ply"), surfels)?;
+    for r in renders {
+        write_npy_f32(&p.join(format!("depth/{:06}.npy", r.frame)), &r.depth)?;
+        write_depth_png_mm(&p.join(format!("depth/{:06}.png", r.frame)), &r.depth)?;
+        write_rgb_png(&p.join(format!("objects/{:06}.png", r.frame)), &r.objects)?;
+    }
+    trand_io::write_atomic(&p.join("config.toml"), config_toml.as_bytes())?;
+    let json = serde_json::to_vec_pretty(run_json).expect("JSON values serialise");
+    trand_io::write_atomic(&p.join(trand_io::run_layout::RUN_JSON), &json)?;
+    dir.commit()?;
+    Ok(())
+}
+
+/// Peak resident memory of this process in MiB (Linux `VmHWM`), if known.
+pub fn peak_rss_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}

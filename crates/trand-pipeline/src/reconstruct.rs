@@ -1,0 +1,250 @@
+//! The t = 0 reconstruction: targets → initial surfels → optimisation → object surfels.
+//!
+//! Methods (the paper's rows): [`Method::Trand`] (object-aware 2DGS with masks, Dice and the
+//! object-aware 3D loss), [`Method::NoObjectLoss`] (the loss ablation) and [`Method::Plain2dgs`] (the
+//! 2DGS baseline on whole photographs, no masks, no object channels used).
+//!
+//! Initialisation ([`InitMode`]): the authors' random slab (100k points), or — trand's default, chosen
+//! by measurement (BENCHMARKS.md) — the same slab samples carved by the training masks (a visual hull):
+//! points that project onto an object pixel in every training view that sees them. Surfels that start
+//! outside every object cost time and are pruned anyway, since the masked targets are black there.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64;
+use trand_core::{math::softmax, Surfels};
+use trand_io::{select_train_views, Sequence, ViewCount};
+use trand_train::config::{Activation, TrainConfig};
+use trand_train::init::{random_init, slab_points, surfels_from_points, InitConfig, SlabBox};
+
+use crate::targets::{self, Supervision, TrainView};
+use crate::trainer::{camera_extent, StepReport, Trainer};
+use crate::{PipelineError, Result};
+
+/// Which of the paper's methods to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    Trand,
+    NoObjectLoss,
+    Plain2dgs,
+}
+
+impl Method {
+    pub fn supervision(self) -> Supervision {
+        match self {
+            Method::Plain2dgs => Supervision::FullImage,
+            _ => Supervision::ObjectAware,
+        }
+    }
+}
+
+/// How the initial surfels are placed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InitMode {
+    /// The authors' random slab (points in the volume and on the four side faces).
+    Slab,
+    /// Slab samples (volume only, taller box) kept where every training mask that sees them is an object.
+    VisualHull,
+}
+
+/// Everything a reconstruction needs besides the data.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReconstructOptions {
+    pub method: Method,
+    pub views: u32,
+    /// Integer image downsampling for training (1 = native resolution).
+    pub downsample: u32,
+    pub init_mode: InitMode,
+    pub init: InitConfig,
+    pub train: TrainConfig,
+    /// Object channels K (background included).
+    pub num_objects: usize,
+}
+
+impl Default for ReconstructOptions {
+    fn default() -> Self {
+        Self {
+            method: Method::Trand,
+            views: 6,
+            downsample: 1,
+            init_mode: InitMode::VisualHull,
+            init: InitConfig::default(),
+            train: TrainConfig::default(),
+            num_objects: trand_core::DEFAULT_NUM_OBJECTS,
+        }
+    }
+}
+
+/// Result of a reconstruction.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    /// The surfels kept at the end (object surfels, or all of them for plain 2DGS).
+    pub surfels: Surfels,
+    /// Surfel count before the object filter.
+    pub num_trained: usize,
+    /// `(object id, channel)`.
+    pub channels: Vec<(u16, usize)>,
+    pub train_views: Vec<String>,
+    pub preprocess_s: f64,
+    pub optimise_s: f64,
+    /// `(iteration, loss)` of every iteration.
+    pub curve: Vec<(u32, f32)>,
+    pub initial_surfels: usize,
+}
+
+fn view_count(n: u32) -> Result<ViewCount> {
+    match n {
+        3 => Ok(ViewCount::Three),
+        6 => Ok(ViewCount::Six),
+        12 => Ok(ViewCount::Twelve),
+        _ => Err(PipelineError::Invalid(format!("--views must be 3, 6 or 12, not {n}"))),
+    }
+}
+
+/// Builds the training views of t = 0.
+pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<(Vec<TrainView>, Vec<(u16, usize)>)> {
+    let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
+    if chosen.is_empty() {
+        return Err(PipelineError::Invalid(format!("{}: no training views at t=0", seq.root.display())));
+    }
+    let channels = targets::channel_map(&seq.object_ids, opts.num_objects)?;
+    let sup = opts.method.supervision();
+    let views = chosen
+        .iter()
+        .map(|v| targets::build(v, &channels, opts.num_objects, opts.train.background, sup, opts.downsample))
+        .collect::<Result<Vec<_>>>()?;
+    Ok((views, channels))
+}
+
+/// Slab samples carved by the masks (see the module docs).
+fn visual_hull_points(views: &[TrainView], cfg: &InitConfig, target: usize) -> Result<Vec<[f32; 3]>> {
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
+    // Tall enough for stacked glassware: half the box's half-width.
+    b.max[2] = 0.5 * (b.max[0] - b.min[0]) * 0.5;
+    let mut rng = Pcg64::seed_from_u64(cfg.seed);
+    let inside = |p: [f32; 3]| {
+        let mut seen = 0;
+        for v in views {
+            let Some((x, y, _)) = v.camera.project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)) else {
+                continue;
+            };
+            let (xi, yi) = (x.round(), y.round());
+            if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
+                continue;
+            }
+            if v.ids[yi as usize * v.width + xi as usize] == 0 {
+                return false;
+            }
+            seen += 1;
+        }
+        seen >= 2
+    };
+    let mut kept = Vec::with_capacity(target);
+    // Draw in batches until enough points survive (or a budget of samples is spent).
+    for _ in 0..200 {
+        let batch = slab_points(&b, 20_000, 0, &mut rng);
+        kept.extend(batch.into_iter().filter(|&p| inside(p)));
+        if kept.len() >= target {
+            break;
+        }
+    }
+    kept.truncate(target);
+    if kept.len() < 100 {
+        return Err(PipelineError::Invalid(
+            "the visual hull of the training masks is (nearly) empty: are the masks and poses consistent? \
+             (try --init slab)"
+                .into(),
+        ));
+    }
+    let _ = rng.random::<u32>();
+    Ok(kept)
+}
+
+/// Initial surfels for the chosen [`InitMode`].
+pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result<Surfels> {
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    let k = opts.num_objects;
+    let deg = opts.train.sh_degree;
+    match (opts.init_mode, opts.method.supervision()) {
+        (InitMode::VisualHull, Supervision::ObjectAware) => {
+            let n = opts.init.num_volume + 4 * opts.init.num_per_face;
+            let pts = visual_hull_points(views, &opts.init, n / 5)?;
+            let mut rng = Pcg64::seed_from_u64(opts.init.seed ^ 0x6875_6c6c);
+            Ok(surfels_from_points(pts, &opts.init, deg, k, &mut rng)?)
+        }
+        _ => Ok(random_init(&opts.init, &cams, deg, k)?),
+    }
+}
+
+/// TRAN-D keeps the object surfels only: some object channel above ½, background below ½, above the table.
+pub fn object_filter(s: &Surfels) -> Vec<bool> {
+    let k = s.num_objects;
+    let mut p = vec![0.0f32; k];
+    (0..s.len())
+        .map(|i| {
+            softmax(&s.obj_logits[i * k..(i + 1) * k], &mut p);
+            p[0] < 0.5 && p[1..].iter().any(|&v| v > 0.5) && s.means[i][2] > 0.0
+        })
+        .collect()
+}
+
+/// Runs the t = 0 reconstruction. `on_step` sees every iteration; setting `cancel` stops after the
+/// current iteration with [`PipelineError::Interrupted`] (the caller keeps its last checkpoint).
+pub fn reconstruct(
+    seq: &Sequence,
+    opts: &ReconstructOptions,
+    start: Option<(Surfels, u32)>,
+    on_step: &mut dyn FnMut(&StepReport, &Surfels),
+    cancel: &AtomicBool,
+) -> Result<Reconstruction> {
+    opts.train.validate()?;
+    let t0 = Instant::now();
+    let (views, channels) = train_views(seq, opts)?;
+    let mut cfg = opts.train.clone();
+    if opts.method != Method::Trand {
+        cfg.object_loss.active = Activation::Never;
+    }
+    let (surfels, first) = match start {
+        Some((s, it)) => (s, it + 1),
+        None => (initial_surfels(&views, opts)?, cfg.start_iteration + 1),
+    };
+    let initial = surfels.len();
+    let extent = camera_extent(&views);
+    let preprocess_s = t0.elapsed().as_secs_f64();
+
+    let t1 = Instant::now();
+    let last = cfg.start_iteration + cfg.iterations;
+    let mut trainer = Trainer::new(surfels, cfg, &views, extent, opts.method.supervision());
+    let mut curve = Vec::new();
+    for it in first..=last {
+        let rep = trainer.step(it, it == last)?;
+        curve.push((it, rep.loss));
+        on_step(&rep, &trainer.surfels);
+        if cancel.load(Ordering::SeqCst) && it < last {
+            return Err(PipelineError::Interrupted(it));
+        }
+    }
+    let optimise_s = t1.elapsed().as_secs_f64();
+    let mut surfels = trainer.surfels;
+    let num_trained = surfels.len();
+    if opts.method.supervision() == Supervision::ObjectAware {
+        let keep = object_filter(&surfels);
+        surfels.retain(&keep);
+    }
+    Ok(Reconstruction {
+        surfels,
+        num_trained,
+        channels,
+        train_views: views.iter().map(|v| v.name.clone()).collect(),
+        preprocess_s,
+        optimise_s,
+        curve,
+        initial_surfels: initial,
+    })
+}

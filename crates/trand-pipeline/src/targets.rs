@@ -1,0 +1,180 @@
+//! Training targets, as the authors' loader builds them (official-code notes §2.5, §3, §7.4):
+//!
+//! * **RGB**: the photograph with every background pixel (instance id 0) set to the background colour
+//!   (black by default), so the surfels only have to explain the objects.
+//! * **Colour-coded mask**: `0.3 · rgb + 0.7 · palette[channel]` on object pixels, background black.
+//! * **Object map**: one-hot over K channels (channel 0 = background, object `k` → channel `k`).
+//!
+//! The plain-2DGS baseline ([`Supervision::FullImage`]) fits the unmasked photograph only.
+//! Images may be box-downsampled by an integer factor for faster training (`--downsample`): colours are
+//! averaged over each block and the instance id is the block's most frequent id, so ids stay exact.
+
+use trand_core::Camera;
+use trand_io::View;
+
+use crate::{PipelineError, Result};
+
+/// What the surfels are fitted to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Supervision {
+    /// TRAN-D: masked RGB, colour-coded masks and the one-hot object map.
+    ObjectAware,
+    /// Plain 2DGS: the whole photograph, no masks.
+    FullImage,
+}
+
+/// One training view with its targets (row-major, interleaved).
+#[derive(Clone, Debug)]
+pub struct TrainView {
+    pub name: String,
+    pub camera: Camera,
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<f32>,
+    /// Empty for [`Supervision::FullImage`].
+    pub mask: Vec<f32>,
+    /// `H·W·K`; empty for [`Supervision::FullImage`].
+    pub one_hot: Vec<f32>,
+    /// Instance id per pixel (after downsampling).
+    pub ids: Vec<u16>,
+}
+
+/// Colour of object channel `c` in the colour-coded mask: evenly spaced hues, full saturation, so that
+/// any two objects differ in at least one channel by ≥ 0.5. Channel 0 (background) is black.
+pub fn palette(c: usize) -> [f32; 3] {
+    if c == 0 {
+        return [0.0; 3];
+    }
+    // Golden-ratio hue stepping keeps consecutive ids far apart in hue.
+    let h = ((c as f64 - 1.0) * 0.618_033_988_75).fract() * 6.0;
+    let x = 1.0 - ((h % 2.0) - 1.0).abs();
+    let (r, g, b) = match h as u32 {
+        0 => (1.0, x, 0.0),
+        1 => (x, 1.0, 0.0),
+        2 => (0.0, 1.0, x),
+        3 => (0.0, x, 1.0),
+        4 => (x, 0.0, 1.0),
+        _ => (1.0, 0.0, x),
+    };
+    [r as f32, g as f32, b as f32]
+}
+
+/// `(object id, channel)`: objects in increasing id order get channels 1, 2, …
+pub fn channel_map(object_ids: &[u16], num_objects: usize) -> Result<Vec<(u16, usize)>> {
+    let mut ids: Vec<u16> = object_ids.iter().copied().filter(|&i| i != 0).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    if ids.len() + 1 > num_objects {
+        return Err(PipelineError::Invalid(format!(
+            "the sequence has {} objects but only {} object channels (background included); raise --objects",
+            ids.len(),
+            num_objects
+        )));
+    }
+    Ok(ids.into_iter().enumerate().map(|(k, id)| (id, k + 1)).collect())
+}
+
+/// Builds the targets of one view.
+pub fn build(
+    view: &View,
+    channels: &[(u16, usize)],
+    num_objects: usize,
+    background: [f32; 3],
+    supervision: Supervision,
+    downsample: u32,
+) -> Result<TrainView> {
+    let err = |what: String| PipelineError::View { view: view.name.clone(), what };
+    let rgb8 = view.rgb.as_ref().ok_or_else(|| err("no RGB image".into()))?;
+    let inst = view.instance.as_ref().ok_or_else(|| err("no instance mask".into()))?;
+    if !rgb8.same_size(inst) {
+        return Err(err(format!(
+            "mask is {}x{} but the image is {}x{}",
+            inst.width, inst.height, rgb8.width, rgb8.height
+        )));
+    }
+    let f = downsample.max(1) as usize;
+    let (w0, h0) = (rgb8.width as usize, rgb8.height as usize);
+    let (w, h) = (w0 / f, h0 / f);
+    if w == 0 || h == 0 {
+        return Err(err(format!("downsampling {w0}x{h0} by {f} leaves no pixels")));
+    }
+    let mut lut = vec![usize::MAX; u16::MAX as usize + 1];
+    lut[0] = 0;
+    for &(id, c) in channels {
+        lut[id as usize] = c;
+    }
+    let mut rgb = vec![0.0f32; w * h * 3];
+    let mut ids = vec![0u16; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut acc = [0.0f32; 3];
+            let mut votes: Vec<(u16, usize)> = Vec::new();
+            for dy in 0..f {
+                for dx in 0..f {
+                    let p = (y * f + dy) * w0 + x * f + dx;
+                    for c in 0..3 {
+                        acc[c] += rgb8.data[p * 3 + c] as f32 / 255.0;
+                    }
+                    let id = inst.data[p];
+                    match votes.iter_mut().find(|v| v.0 == id) {
+                        Some(v) => v.1 += 1,
+                        None => votes.push((id, 1)),
+                    }
+                }
+            }
+            let id = votes.iter().max_by_key(|v| (v.1, std::cmp::Reverse(v.0))).map_or(0, |v| v.0);
+            if lut[id as usize] == usize::MAX {
+                return Err(err(format!("instance id {id} is not one of the sequence's objects")));
+            }
+            let o = y * w + x;
+            ids[o] = id;
+            for c in 0..3 {
+                rgb[o * 3 + c] = acc[c] / (f * f) as f32;
+            }
+        }
+    }
+    let camera = Camera { intrinsics: view.camera.intrinsics.scaled(1.0 / f as f64), ..view.camera };
+    if supervision == Supervision::FullImage {
+        return Ok(TrainView { name: view.name.clone(), camera, width: w, height: h, rgb, mask: Vec::new(), one_hot: Vec::new(), ids });
+    }
+    let mut mask = vec![0.0f32; w * h * 3];
+    let mut one_hot = vec![0.0f32; w * h * num_objects];
+    for o in 0..w * h {
+        let c = lut[ids[o] as usize];
+        one_hot[o * num_objects + c] = 1.0;
+        if c == 0 {
+            rgb[o * 3..o * 3 + 3].copy_from_slice(&background);
+            mask[o * 3..o * 3 + 3].copy_from_slice(&background);
+        } else {
+            let p = palette(c);
+            for k in 0..3 {
+                mask[o * 3 + k] = 0.3 * rgb[o * 3 + k] + 0.7 * p[k];
+            }
+        }
+    }
+    Ok(TrainView { name: view.name.clone(), camera, width: w, height: h, rgb, mask, one_hot, ids })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn palette_colours_are_distinct() {
+        for a in 1..15 {
+            for b in a + 1..15 {
+                let (pa, pb) = (palette(a), palette(b));
+                let d = (0..3).map(|k| (pa[k] - pb[k]).abs()).fold(0.0, f32::max);
+                assert!(d > 0.2, "channels {a} and {b} too close: {pa:?} {pb:?}");
+            }
+        }
+        assert_eq!(palette(0), [0.0; 3]);
+    }
+
+    #[test]
+    fn channel_map_rejects_too_many_objects() {
+        assert_eq!(channel_map(&[4, 2, 0, 9], 15).unwrap(), vec![(2, 1), (4, 2), (9, 3)]);
+        assert!(channel_map(&[1, 2, 3], 3).is_err());
+    }
+}

@@ -1,0 +1,189 @@
+//! One optimisation loop, shared by the t = 0 reconstruction and the t = 1 refinement.
+//!
+//! Per iteration `it` (1-based, official-code notes §2.1–2.2):
+//! 1. learning rates for `it`; a training view drawn from a shuffled stack (each view once per epoch);
+//! 2. render RGB, mask colour, object map and geometry;
+//! 3. losses: `w_rgb·[(1−λ)L1 + λ(1−SSIM)]` on RGB, the same on the mask image, Dice on the object map,
+//!    optionally the 2DGS normal-consistency and distortion terms; the object-aware 3D loss on the
+//!    positions;
+//! 4. backward through the rasterizer, densification statistics;
+//! 5. every `interval` iterations densify and prune, every `reset` iterations reset opacities; as in the
+//!    reference, parameters replaced by densification or reset are not stepped in that iteration;
+//!    otherwise an Adam step. The last iteration takes no step (the reference saves before it).
+
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64;
+use trand_core::Surfels;
+use trand_render::{render, Maps, OutputGrads, ParamsOf, RenderSettings};
+use trand_train::config::TrainConfig;
+use trand_train::losses::{dice::dice, geometry, object::object_aware_loss, photometric::photometric};
+use trand_train::{densify_and_prune, reset_opacity, Adam, DensifyStats};
+
+use crate::targets::{Supervision, TrainView};
+use crate::Result;
+
+/// What one iteration did.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StepReport {
+    pub iteration: u32,
+    pub view: usize,
+    pub loss: f32,
+    pub rgb: f32,
+    pub mask: f32,
+    pub dice: f32,
+    pub object: f32,
+    pub num_surfels: usize,
+    pub densified: bool,
+}
+
+/// Optimiser state over a set of surfels and training views.
+pub struct Trainer<'a> {
+    pub surfels: Surfels,
+    pub adam: Adam,
+    pub stats: DensifyStats,
+    pub cfg: TrainConfig,
+    pub views: &'a [TrainView],
+    /// Scene extent (1.1 × the largest camera distance from the cameras' mean), for densification.
+    pub extent: f32,
+    /// Extent that scales the position learning rate.
+    pub lr_extent: f64,
+    pub supervision: Supervision,
+    rng: Pcg64,
+    stack: Vec<usize>,
+}
+
+/// `1.1 · max_i |C_i − mean(C)|` over the training cameras (2DGS `getNerfppNorm`).
+pub fn camera_extent(views: &[TrainView]) -> f32 {
+    let centres: Vec<glam::DVec3> = views.iter().map(|v| v.camera.center()).collect();
+    let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len().max(1) as f64;
+    (1.1 * centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max)) as f32
+}
+
+impl<'a> Trainer<'a> {
+    pub fn new(surfels: Surfels, cfg: TrainConfig, views: &'a [TrainView], extent: f32, supervision: Supervision) -> Self {
+        let adam = Adam::new(&surfels, cfg.adam);
+        let stats = DensifyStats::new(surfels.len());
+        let rng = Pcg64::seed_from_u64(cfg.seed ^ 0x7472_616e_64);
+        Self { surfels, adam, stats, lr_extent: extent as f64, extent, cfg, views, supervision, rng, stack: Vec::new() }
+    }
+
+    fn next_view(&mut self) -> usize {
+        if self.stack.is_empty() {
+            self.stack = (0..self.views.len()).collect();
+        }
+        let i = self.rng.random_range(0..self.stack.len());
+        self.stack.swap_remove(i)
+    }
+
+    /// Runs iteration `it`; `last` marks the final iteration (no optimiser step, no densification).
+    pub fn step(&mut self, it: u32, last: bool) -> Result<StepReport> {
+        let vi = self.next_view();
+        let cfg = &self.cfg;
+        let view = &self.views[vi];
+        let k = self.surfels.num_objects;
+        let object_aware = self.supervision == Supervision::ObjectAware;
+        let geo = &cfg.geometry_loss;
+        let geometry_on = geo.active.is_active(it) && (geo.lambda_normal > 0.0 || geo.lambda_dist > 0.0);
+        let settings = RenderSettings {
+            background: cfg.background,
+            near: cfg.near as f64,
+            sh_degree: Some(cfg.sh_degree),
+            maps: if object_aware { Maps::All } else { Maps::Rgb },
+        };
+        let out = render::<f32, _>(&self.surfels, &view.camera, &settings)?;
+        let (w, h) = (view.width, view.height);
+        let il = &cfg.image_loss;
+        let lam = il.lambda_dssim as f32;
+        let mut g = OutputGrads::<f32>::default();
+        let mut rep = StepReport { iteration: it, view: vi, ..Default::default() };
+
+        let rgb_w = if object_aware { il.rgb as f32 } else { 1.0 };
+        let p = photometric(&out.rgb, &view.rgb, w, h, 3, lam);
+        rep.rgb = p.value;
+        g.rgb = Some(p.grad.into_iter().map(|v| v * rgb_w).collect());
+        let mut loss = rgb_w * p.value;
+        if object_aware {
+            let pm = photometric(&out.mask, &view.mask, w, h, 3, lam);
+            rep.mask = pm.value;
+            loss += il.mask as f32 * pm.value;
+            g.mask = Some(pm.grad.into_iter().map(|v| v * il.mask as f32).collect());
+            let (dv, dg) = dice(&out.objects, &view.one_hot, k);
+            rep.dice = dv;
+            loss += il.dice as f32 * dv;
+            g.objects = Some(dg.into_iter().map(|v| v * il.dice as f32).collect());
+        }
+        if geometry_on {
+            let n = w * h;
+            if geo.lambda_normal > 0.0 {
+                let normals: Vec<[f32; 3]> = out.normal.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                let pin = geometry::Pinhole::from_intrinsics(&view.camera.intrinsics);
+                let nc = geometry::normal_consistency(&normals, &out.median, &out.alpha, &pin, w, h);
+                let lam_n = geo.lambda_normal as f32;
+                loss += lam_n * nc.value;
+                g.normal = Some(nc.grad_normal.iter().flat_map(|v| v.map(|x| x * lam_n)).collect());
+                g.median = Some(nc.grad_depth.iter().map(|v| v * lam_n).collect());
+            }
+            if geo.lambda_dist > 0.0 {
+                let (dv, dgrad) = geometry::distortion(&out.distortion);
+                let lam_d = geo.lambda_dist as f32;
+                loss += lam_d * dv;
+                g.distortion = Some(vec![dgrad * lam_d; n]);
+            }
+        }
+        rep.loss = loss;
+        if last {
+            rep.num_surfels = self.surfels.len();
+            return Ok(rep);
+        }
+
+        let grads = out.backward(&self.surfels, &g);
+        let mut gs = self.surfels.zeros_like();
+        grads.params.write_into(&mut gs);
+        if object_aware && cfg.object_loss.active.is_active(it) {
+            let ol = object_aware_loss(&self.surfels.means, &self.surfels.obj_logits, k, &cfg.object_loss.params);
+            let wgt = cfg.object_loss.weight as f32;
+            rep.object = ol.value;
+            rep.loss += wgt * ol.value;
+            for (gm, go) in gs.means.iter_mut().zip(&ol.grad) {
+                for a in 0..3 {
+                    gm[a] += wgt * go[a];
+                }
+            }
+        }
+        let d = &cfg.densify;
+        if it < d.until_iteration {
+            let dens: Vec<[f32; 2]> = grads.densify.clone();
+            self.stats.add(&out.radii, &dens);
+        }
+        let densify = d.densify_now(it);
+        let reset = d.reset_opacity_now(it);
+        if densify {
+            densify_and_prune(
+                &mut self.surfels,
+                &mut self.adam,
+                &mut self.stats,
+                d,
+                self.extent,
+                d.size_threshold(it),
+                &mut self.rng,
+            );
+            rep.densified = true;
+        }
+        if reset {
+            reset_opacity(&mut self.surfels, &mut self.adam, d.opacity_reset_value);
+        }
+        if !densify && !reset {
+            let lr = cfg.learning_rates(it, self.lr_extent);
+            self.adam.step(&mut self.surfels, &gs, &lr);
+        }
+        rep.num_surfels = self.surfels.len();
+        Ok(rep)
+    }
+}
+
+/// Gradients as f32 surfels (helper for tests).
+pub fn grads_to_surfels(like: &Surfels, g: &ParamsOf<f32>) -> Surfels {
+    let mut s = like.zeros_like();
+    g.write_into(&mut s);
+    s
+}
