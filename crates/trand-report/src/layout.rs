@@ -80,8 +80,8 @@ pub fn log_path(report: &Path, sequence: &str, method: Method, state: State) -> 
 pub struct RunSettings {
     /// `--iterations` (the reconstruct default when absent).
     pub iterations: Option<u32>,
-    /// `--scale` image downscale (the reconstruct default when absent).
-    pub scale: Option<f64>,
+    /// `--downsample`: train on images reduced by this integer factor (evaluation stays at full size).
+    pub downsample: Option<u32>,
     /// `--seed`.
     pub seed: Option<u64>,
 }
@@ -91,9 +91,9 @@ impl std::fmt::Display for RunSettings {
         let show = |v: Option<String>| v.unwrap_or_else(|| "default".into());
         write!(
             f,
-            "--iterations {}, --scale {}, --seed {}",
+            "--iterations {}, --downsample {}, --seed {}",
             show(self.iterations.map(|v| v.to_string())),
-            show(self.scale.map(|v| v.to_string())),
+            show(self.downsample.map(|v| v.to_string())),
             show(self.seed.map(|v| v.to_string()))
         )
     }

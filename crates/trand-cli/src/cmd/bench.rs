@@ -70,9 +70,9 @@ pub struct Args {
     /// `trand reconstruct --iterations` for every t=0 run.
     #[arg(long)]
     pub iterations: Option<u32>,
-    /// `trand reconstruct --scale` for every t=0 run.
+    /// `trand reconstruct --downsample` (integer image reduction for training) for every t=0 run.
     #[arg(long)]
-    pub scale: Option<f64>,
+    pub downsample: Option<u32>,
     /// `trand reconstruct --seed` for every t=0 run.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -244,7 +244,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         methods,
         settings: RunSettings {
             iterations: a.iterations,
-            scale: a.scale,
+            downsample: a.downsample,
             seed: a.seed,
         },
         shard: a.shard.unwrap_or(Shard::WHOLE),

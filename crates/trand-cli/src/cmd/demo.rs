@@ -21,7 +21,7 @@ pub const DEMO_METHODS: [Method; 1] = [Method::Trand];
 /// images are what keeps the demo fast), seed fixed for a repeatable result.
 pub const DEMO_SETTINGS: RunSettings = RunSettings {
     iterations: None,
-    scale: None,
+    downsample: None,
     seed: Some(0),
 };
 

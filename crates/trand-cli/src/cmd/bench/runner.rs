@@ -118,8 +118,8 @@ impl Runner<'_> {
                 if let Some(s) = self.settings.seed {
                     c = c.arg("--seed", s);
                 }
-                if let Some(s) = self.settings.scale {
-                    c = c.arg("--scale", s);
+                if let Some(d) = self.settings.downsample {
+                    c = c.arg("--downsample", d);
                 }
                 c
             }
