@@ -159,7 +159,10 @@ fn a_failed_step_is_logged_and_the_bench_goes_on_but_exits_non_zero() {
             && index.contains("runs/seq_a/plain-2dgs/t1.log")
     );
     check_links(&out);
-    // The failed step runs again next time, the finished ones do not.
+    // The failed step runs again next time, afresh (an interrupted reconstruct's checkpoint goes), and
+    // the finished ones do not.
+    let ckpt = out.join("runs/seq_a/plain-2dgs/t0.checkpoint");
+    std::fs::create_dir_all(&ckpt).unwrap();
     let before = f.calls().len();
     let o = f.trand(
         &[

@@ -145,9 +145,10 @@ fn index_page(manifest: &Manifest, t: &Tables, unfinished: &[String]) -> String 
     let mut b = String::from("<h1>trand benchmark</h1>\n");
     let _ = write!(
         b,
-        "<p>{n} sequences; methods: {}. Depth metrics as in the paper: per sequence pooled over all test views, \
+        "<p>{n} sequence{}; methods: {}. Depth metrics as in the paper: per sequence pooled over all test views, \
          then the unweighted mean over sequences. Also as <a href=\"{}\">Markdown</a> and <a href=\"{}\">JSON</a>.</p>\n\
          <p class=\"note\">Pixels: {}.</p>\n",
+        if n == 1 { "" } else { "s" },
         escape(&methods.join(", ")),
         layout::TABLES_MD,
         layout::TABLES_JSON,

@@ -168,9 +168,16 @@ impl Runner<'_> {
         }
         let t = Instant::now();
         let prepared = (|| -> anyhow::Result<()> {
-            if dir.exists() {
-                std::fs::remove_dir_all(&dir)
-                    .with_context(|| format!("removing incomplete run {}", dir.display()))?;
+            // `trand reconstruct` keeps `<run>.checkpoint/` after an interruption; a bench step always
+            // starts afresh (same numbers as an uninterrupted run), so both leftovers go.
+            let mut ckpt = dir.clone().into_os_string();
+            ckpt.push(".checkpoint");
+            for leftover in [dir.clone(), PathBuf::from(ckpt)] {
+                if leftover.exists() {
+                    std::fs::remove_dir_all(&leftover).with_context(|| {
+                        format!("removing incomplete run {}", leftover.display())
+                    })?;
+                }
             }
             let parent = dir.parent().expect("run dir has a parent");
             std::fs::create_dir_all(parent)
