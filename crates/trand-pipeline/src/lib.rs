@@ -12,6 +12,7 @@ pub mod outputs;
 pub mod reconstruct;
 pub mod targets;
 pub mod trainer;
+pub mod update;
 
 pub use reconstruct::{reconstruct, InitMode, Method, ReconstructOptions, Reconstruction};
 pub use targets::{Supervision, TrainView};

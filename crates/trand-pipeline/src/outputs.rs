@@ -77,6 +77,18 @@ pub fn write_run(
     surfels: &Surfels,
     renders: &[TestRender],
 ) -> Result<()> {
+    write_run_with(target, run_json, config_toml, surfels, renders, &|_| Ok(()))
+}
+
+/// [`write_run`] plus extra files written by `extra` into the (temporary) folder before the commit.
+pub fn write_run_with(
+    target: &Path,
+    run_json: &serde_json::Value,
+    config_toml: &str,
+    surfels: &Surfels,
+    renders: &[TestRender],
+    extra: &dyn Fn(&Path) -> std::result::Result<(), trand_io::IoError>,
+) -> Result<()> {
     let dir = RunDir::create(target)?;
     let p = dir.path();
     let io = |path: &Path, e: std::io::Error| trand_io::IoError::io(path, e);
@@ -91,6 +103,7 @@ pub fn write_run(
     trand_io::write_atomic(&p.join("config.toml"), config_toml.as_bytes())?;
     let json = serde_json::to_vec_pretty(run_json).expect("JSON values serialise");
     trand_io::write_atomic(&p.join(trand_io::run_layout::RUN_JSON), &json)?;
+    extra(p)?;
     dir.commit()?;
     Ok(())
 }
@@ -101,4 +114,29 @@ pub fn peak_rss_mb() -> Option<f64> {
     let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb / 1024.0)
+}
+
+/// A short fingerprint of a sequence (its t = 0 training poses and object ids), stored in `run.json` so
+/// that `trand update` can refuse a run folder made from another sequence.
+pub fn sequence_fingerprint(seq: &trand_io::Sequence) -> String {
+    // FNV-1a over the poses rounded to 0.1 mm / 1e-6, stable across platforms.
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |v: i64| {
+        for b in v.to_le_bytes() {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for v in &seq.train_t0 {
+        for r in v.camera.r_w2c.iter().flatten() {
+            eat((r * 1e6).round() as i64);
+        }
+        for t in &v.camera.t_w2c {
+            eat((t * 1e4).round() as i64);
+        }
+    }
+    for &id in &seq.object_ids {
+        eat(id as i64);
+    }
+    format!("{h:016x}")
 }

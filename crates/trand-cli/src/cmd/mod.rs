@@ -4,3 +4,4 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod reconstruct;
+pub mod update;

@@ -158,6 +158,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut on_step = |r: &trand_pipeline::StepReport, s: &trand_core::Surfels| {
         pb.set_position((r.iteration - opts.train.start_iteration) as u64);
         pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
+        if pb.is_hidden() && r.iteration % 100 == 0 {
+            eprintln!("iteration {}: loss {:.4}, {} surfels", r.iteration, r.loss, r.num_surfels);
+        }
         if r.iteration % every == 0 || cancel.load(Ordering::SeqCst) {
             last_ckpt = write_checkpoint(&ckpt, s, r.iteration);
         }
@@ -188,6 +191,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "method": opts.method,
         "views": opts.views,
         "data": a.data.canonicalize().unwrap_or(a.data.clone()),
+        "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
         "object_channels": rec.channels,
         "timings": {

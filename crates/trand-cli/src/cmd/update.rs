@@ -1,0 +1,265 @@
+//! `trand update`: the t = 1 scene update of a t = 0 run from one new image (see
+//! `trand_pipeline::update` for the stages).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
+use trand_io::{read_sequence_with, select_train_views, LoadOptions, View, ViewCount};
+use trand_pipeline::update::{update, MeshDepth, Stage, SurfelMotion, UpdateOptions};
+use trand_pipeline::{Method, ReconstructOptions};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The t = 0 run folder (from `trand reconstruct`).
+    #[arg(long)]
+    pub run: PathBuf,
+    /// The sequence the run was made from; its train_1 frame 0 is the new image unless --image is given.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Output run folder for t = 1 (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// New RGB image (PNG), with --mask; its camera is train_1 frame 0's (or train_0 frame 0's).
+    #[arg(long, requires = "mask")]
+    pub image: Option<PathBuf>,
+    /// Instance-id mask of the new image (8- or 16-bit PNG, 0 = background).
+    #[arg(long, requires = "image")]
+    pub mask: Option<PathBuf>,
+    /// Physics simulation: on (default) or off (the "without simulation" ablation).
+    #[arg(long, value_parser = parse_stage)]
+    pub physics: Option<Stage>,
+    /// Single-image refinement: on (default) or off ("physics only").
+    #[arg(long, value_parser = parse_stage)]
+    pub refine: Option<Stage>,
+    /// Object ids to treat as removed (skips detection).
+    #[arg(long, num_args = 1..)]
+    pub removed: Option<Vec<u16>>,
+    /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
+    #[arg(long, value_parser = parse_depth)]
+    pub mesh_depth: Option<MeshDepth>,
+    /// Also rotate each surfel by its particle's polar rotation.
+    #[arg(long)]
+    pub rotate_surfels: bool,
+    /// TOML file with any of the update options.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+fn parse_stage(s: &str) -> Result<Stage, String> {
+    match s {
+        "on" => Ok(Stage::On),
+        "off" => Ok(Stage::Off),
+        _ => Err(format!("`{s}`: expected on or off")),
+    }
+}
+
+fn parse_depth(s: &str) -> Result<MeshDepth, String> {
+    match s {
+        "expected" => Ok(MeshDepth::Expected),
+        "median" => Ok(MeshDepth::Median),
+        _ => Err(format!("`{s}`: expected `expected` or `median`")),
+    }
+}
+
+fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
+    let base = seq
+        .train_t1
+        .iter()
+        .chain(&seq.train_t0)
+        .find(|v| v.frame == 0)
+        .with_context(|| format!("{}: no train_1 (or train_0) frame 0 to take the new camera from", a.data.display()))?;
+    let mut v = base.clone();
+    if let (Some(img), Some(mask)) = (&a.image, &a.mask) {
+        let rgb = trand_io::read_rgb8(img)?;
+        let k = &v.camera.intrinsics;
+        if (rgb.width, rgb.height) != (k.width, k.height) {
+            bail!("{}: image is {}x{} but the camera is {}x{}", img.display(), rgb.width, rgb.height, k.width, k.height);
+        }
+        let inst = trand_io::read_gray16(mask).or_else(|_| trand_io::read_gray8(mask).map(|m| {
+            trand_io::Image::from_vec(m.width, m.height, 1, m.data.iter().map(|&x| x as u16).collect()).expect("same size")
+        }))?;
+        if !rgb.same_size(&inst) {
+            bail!("{}: mask is {}x{} but the image is {}x{}", mask.display(), inst.width, inst.height, rgb.width, rgb.height);
+        }
+        v.name = img.display().to_string();
+        v.rgb = Some(rgb);
+        v.instance = Some(inst);
+    }
+    let inst = v.instance.as_ref().with_context(|| format!("{}: the new image has no instance mask", v.name))?;
+    if inst.data.iter().all(|&i| i == 0) {
+        bail!("{}: the new image's mask is empty (no object pixels)", v.name);
+    }
+    if v.rgb.is_none() {
+        bail!("{}: the new image has no RGB", v.name);
+    }
+    Ok(v)
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    if a.out.exists() {
+        bail!("{}: output folder already exists", a.out.display());
+    }
+    let run_json_path = a.run.join("run.json");
+    let run_json: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&run_json_path).with_context(|| format!("{}: not a run folder", a.run.display()))?,
+    )
+    .with_context(|| format!("{}: malformed JSON", run_json_path.display()))?;
+    if run_json["state"] != "t0" {
+        bail!("{}: field `state` is {} but update needs a t0 run", run_json_path.display(), run_json["state"]);
+    }
+    let cfg_path = a.run.join("config.toml");
+    let ropts: ReconstructOptions = toml::from_str(
+        &std::fs::read_to_string(&cfg_path).with_context(|| format!("reading {}", cfg_path.display()))?,
+    )
+    .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
+    let channels: Vec<(u16, usize)> = serde_json::from_value(run_json["object_channels"].clone())
+        .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
+    let surfels = trand_io::read_surfels_ply(&a.run.join("surfels.ply"))?;
+
+    let seq = read_sequence_with(&a.data, &LoadOptions { object_channels: Some(ropts.num_objects), ..Default::default() })
+        .with_context(|| format!("reading {}", a.data.display()))?;
+    let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
+    if run_json["sequence_fingerprint"].as_str() != Some(fp.as_str()) {
+        bail!(
+            "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
+            a.run.display(),
+            a.data.display(),
+            run_json["sequence_fingerprint"]
+        );
+    }
+    let view = new_view(&a, &seq)?;
+
+    let mut opts = match &a.config {
+        Some(p) => toml::from_str::<UpdateOptions>(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
+            .with_context(|| format!("{}: invalid configuration", p.display()))?,
+        None => UpdateOptions::default(),
+    };
+    opts.physics = a.physics.unwrap_or(opts.physics);
+    opts.refine = a.refine.unwrap_or(opts.refine);
+    if a.removed.is_some() {
+        opts.removed = a.removed.clone();
+    }
+    opts.mesh_depth = a.mesh_depth.unwrap_or(opts.mesh_depth);
+    if a.rotate_surfels {
+        opts.motion = SurfelMotion::TranslateRotate;
+    }
+    opts.train.background = ropts.train.background;
+    opts.train.sh_degree = ropts.train.sh_degree;
+    opts.train.near = ropts.train.near;
+
+    // The t = 0 scene extent, for densification at t = 1 (notes §10 row 7).
+    let vc = match ropts.views {
+        3 => ViewCount::Three,
+        12 => ViewCount::Twelve,
+        _ => ViewCount::Six,
+    };
+    let t0_views: Vec<_> = select_train_views(&seq.train_t0, vc);
+    let centres: Vec<glam::DVec3> = t0_views.iter().map(|v| v.camera.center()).collect();
+    let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len().max(1) as f64;
+    let extent = (1.1 * centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max)) as f32;
+    let cams: Vec<_> = t0_views.iter().map(|v| v.camera).collect();
+    let radius = trand_physics::focus_point(&cams)
+        .map(|f| cams.iter().map(|c| (c.center() - f).length()).sum::<f64>() / cams.len() as f64)
+        .unwrap_or(0.5) as f32;
+    let scale = trand_pipeline::update::SceneScale { extent, radius, downsample: ropts.downsample };
+
+    let pb = ProgressBar::new(100);
+    pb.set_style(ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {msg}").expect("valid template").progress_chars("=> "));
+    let mut progress = |stage: &str, i: u32, n: u32| {
+        pb.set_prefix(stage.to_string());
+        pb.set_length(n as u64);
+        pb.set_position(i as u64);
+    };
+    let mut on_step = |r: &trand_pipeline::StepReport| {
+        pb.set_prefix("refinement");
+        pb.set_length(opts.train.iterations as u64);
+        pb.set_position((r.iteration - opts.train.start_iteration) as u64);
+        pb.set_message(format!("loss {:.4}", r.loss));
+    };
+    let sup = ropts.method.supervision();
+    let up = update(surfels, &channels, &view, scale, sup, &opts, &mut progress, &mut on_step)
+        .with_context(|| format!("updating {}", a.run.display()))?;
+    pb.finish_and_clear();
+
+    let t_render = Instant::now();
+    let settings = trand_render::RenderSettings {
+        background: ropts.train.background,
+        near: ropts.train.near as f64,
+        sh_degree: Some(opts.train.sh_degree),
+        ..Default::default()
+    };
+    let renders = trand_pipeline::outputs::render_views(&up.surfels, &seq.test_t1, &settings)?;
+    let total = up.detection_s + up.meshing_s + up.simulation_s + up.refinement_s;
+    let out_json = serde_json::json!({
+        "state": "t1",
+        "method": ropts.method,
+        "views": ropts.views,
+        "t0_run": a.run.canonicalize().unwrap_or(a.run.clone()),
+        "data": a.data.canonicalize().unwrap_or(a.data.clone()),
+        "sequence_fingerprint": fp,
+        "new_image": view.name,
+        "object_channels": channels,
+        "matching": up.matches,
+        "removed": up.removed,
+        "removed_by": if opts.removed.is_some() { "user" } else { "detection" },
+        "deleted_surfels": up.deleted_surfels,
+        "num_particles": up.num_particles,
+        "max_surfel_displacement_m": up.max_displacement_m,
+        "physics": opts.physics,
+        "refine": opts.refine,
+        "timings": {
+            "detection_s": up.detection_s,
+            "meshing_s": up.meshing_s,
+            "simulation_s": up.simulation_s,
+            "refinement_s": up.refinement_s,
+            "total_s": total,
+            "test_render_s": t_render.elapsed().as_secs_f64(),
+            "wall_s": t_all.elapsed().as_secs_f64(),
+        },
+        "num_surfels": up.surfels.len(),
+        "loss_curve": up.curve,
+        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
+        "threads": rayon::current_num_threads(),
+        "trand_version": env!("CARGO_PKG_VERSION"),
+    });
+    let mut cfg = toml::to_string(&opts).context("serialising the configuration")?;
+    if ropts.method == Method::Plain2dgs {
+        cfg.insert_str(0, "# plain-2dgs run: no object channels, so no detection and no physics; refinement only\n");
+    }
+    let mesh = up.mesh.clone();
+    trand_pipeline::outputs::write_run_with(&a.out, &out_json, &cfg, &up.surfels, &renders, &|dir| {
+        if let Some(m) = &mesh {
+            if !m.vertices.is_empty() {
+                trand_io::write_mesh_ply(&dir.join("mesh.ply"), m)?;
+            }
+        }
+        Ok(())
+    })?;
+    for m in &up.matches {
+        match m.new_id {
+            Some(n) => println!("object {} -> new instance {n} (IoU {:.2})", m.object_id, m.iou),
+            None => println!("object {} -> not found (best IoU {:.2}): removed", m.object_id, m.iou),
+        }
+    }
+    if up.removed.is_empty() {
+        println!("no object was found missing: nothing deleted, physics ran on the unchanged scene");
+    }
+    println!(
+        "updated in {total:.1} s (detection {:.1}, meshing {:.1}, simulation {:.1}, refinement {:.1}): {} surfels, {} particles -> {}",
+        up.detection_s,
+        up.meshing_s,
+        up.simulation_s,
+        up.refinement_s,
+        up.surfels.len(),
+        up.num_particles,
+        a.out.display()
+    );
+    if !seq.test_t1.is_empty() && seq.test_t1.iter().all(|v| v.depth.is_some() && v.instance.is_some()) {
+        let (_, m) = trand_eval::evaluate_run(&a.out, &a.data, Some(trand_io::State::T1))?;
+        print!("{}", trand_eval::table(&[("t1", &m)]));
+    }
+    Ok(())
+}

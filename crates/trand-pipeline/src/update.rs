@@ -1,0 +1,413 @@
+//! The t = 1 scene update after objects are taken away (paper §3.4, official-code notes §5 with the
+//! choices of §10):
+//!
+//! 1. **Detection**: render the t = 0 object map from the new view; match the rendered objects to the
+//!    new mask's instances by IoU with the Hungarian method; t = 0 objects left unmatched were removed
+//!    (`removed` overrides). Finding nothing removed is a valid outcome.
+//! 2. **Deletion** of every surfel whose softmax probability of a removed object exceeds ½.
+//! 3. **Meshing**: depth of the remaining surfels (expected depth by default, §10 row 14) from a ring of
+//!    virtual views plus one from below the table, TSDF fusion, surface nets, vertices labelled by the
+//!    nearest object surfel.
+//! 4. **Particles**: object surfel centres plus mesh vertices (optional interior fill).
+//! 5. **MLS-MPM**, all objects in one solver; 6. each surfel moves with its particle (optionally also
+//!    rotating by the particle's polar rotation).
+//! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
+//!    object lr 0.1, densification with the t = 0 scene extent).
+
+use std::time::Instant;
+
+use glam::{DVec3, Quat};
+use trand_core::{math::softmax, Camera, Intrinsics, Surfels};
+use trand_eval::{hungarian, iou};
+use trand_io::View;
+use trand_physics::{
+    below_view, build_particles, ring_views, InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume,
+};
+use trand_render::{render, Maps, RenderSettings};
+use trand_train::config::TrainConfig;
+
+use crate::targets::{self, Supervision};
+use crate::trainer::{StepReport, Trainer};
+use crate::{PipelineError, Result};
+
+/// Which depth of the rendered surfels feeds the TSDF.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MeshDepth {
+    /// `Σ w z / α`: the authors' code (depth_ratio 0).
+    Expected,
+    /// The median depth (what evaluation uses).
+    Median,
+}
+
+/// Whether surfels also rotate with their particle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SurfelMotion {
+    /// Centres only (the authors' release).
+    Translate,
+    /// Centres and orientation (polar rotation of the particle's deformation gradient).
+    TranslateRotate,
+}
+
+/// A stage that can be switched off for the ablations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Stage {
+    On,
+    Off,
+}
+
+/// Settings of the update.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct UpdateOptions {
+    pub physics: Stage,
+    pub refine: Stage,
+    /// Removed object ids given by the user instead of detection.
+    pub removed: Option<Vec<u16>>,
+    /// Minimum IoU for a rendered t = 0 object and a new instance to be the same object.
+    pub min_iou: f64,
+    pub mesh_depth: MeshDepth,
+    pub motion: SurfelMotion,
+    pub fill: InteriorFill,
+    /// Virtual views: elevations (degrees) × azimuths, at this image size and focal length.
+    pub ring_elevations_deg: Vec<f64>,
+    pub ring_azimuths: usize,
+    pub virtual_width: u32,
+    pub virtual_height: u32,
+    pub virtual_focal: f64,
+    pub mpm: MpmConfig,
+    pub train: TrainConfig,
+    /// Image downsampling for the refinement (`None`: the t = 0 run's).
+    pub downsample: Option<u32>,
+}
+
+/// Scale of the t = 0 scene, carried into the update.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneScale {
+    /// 1.1 × the largest distance of a t = 0 training camera from their mean (densification unit).
+    pub extent: f32,
+    /// Mean distance of the t = 0 training cameras from the point they look at: sets the TSDF voxel
+    /// `2·radius/256` as the authors' code does with its camera radius.
+    pub radius: f32,
+    /// The t = 0 run's training downsampling.
+    pub downsample: u32,
+}
+
+impl Default for UpdateOptions {
+    fn default() -> Self {
+        Self {
+            physics: Stage::On,
+            refine: Stage::On,
+            removed: None,
+            min_iou: 0.1,
+            mesh_depth: MeshDepth::Expected,
+            motion: SurfelMotion::Translate,
+            fill: InteriorFill::None,
+            ring_elevations_deg: vec![15.0, 40.0, 65.0],
+            ring_azimuths: 8,
+            virtual_width: 320,
+            virtual_height: 240,
+            virtual_focal: 300.0,
+            mpm: MpmConfig::default(),
+            train: TrainConfig::t1(),
+            downsample: None,
+        }
+    }
+}
+
+/// One t = 0 object and what it matched in the new image.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Match {
+    pub object_id: u16,
+    pub channel: usize,
+    /// Instance id in the new mask, if matched.
+    pub new_id: Option<u16>,
+    pub iou: f64,
+}
+
+/// Result of an update.
+#[derive(Clone, Debug)]
+pub struct Update {
+    pub surfels: Surfels,
+    pub matches: Vec<Match>,
+    pub removed: Vec<u16>,
+    pub deleted_surfels: usize,
+    pub mesh: Option<trand_io::Mesh>,
+    pub num_particles: usize,
+    pub max_displacement_m: f32,
+    pub detection_s: f64,
+    pub meshing_s: f64,
+    pub simulation_s: f64,
+    pub refinement_s: f64,
+    pub curve: Vec<(u32, f32)>,
+}
+
+/// Step 1: IoU matching between the rendered t = 0 objects and the new instances.
+pub fn detect(
+    surfels: &Surfels,
+    channels: &[(u16, usize)],
+    view: &View,
+    settings: &RenderSettings,
+    min_iou: f64,
+) -> Result<Vec<Match>> {
+    let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View { view: view.name.clone(), what: "no instance mask".into() })?;
+    let out = render::<f32, _>(surfels, &view.camera, &RenderSettings { maps: Maps::RgbObjects, ..*settings })?;
+    if (out.width, out.height) != (inst.width, inst.height) {
+        return Err(PipelineError::View {
+            view: view.name.clone(),
+            what: format!("mask is {}x{} but the camera renders {}x{}", inst.width, inst.height, out.width, out.height),
+        });
+    }
+    let k = out.num_objects;
+    let n = out.alpha.len();
+    let rendered: Vec<Vec<bool>> = channels
+        .iter()
+        .map(|&(_, c)| (0..n).map(|p| out.objects[p * k + c] > 0.5 * out.alpha[p].max(1e-6) && out.alpha[p] > 0.3).collect())
+        .collect();
+    let new_ids: Vec<u16> = inst.ids().into_iter().filter(|&i| i != 0).collect();
+    let new_masks: Vec<Vec<bool>> = new_ids.iter().map(|&i| inst.mask(i)).collect();
+    let ious: Vec<Vec<f64>> = rendered.iter().map(|r| new_masks.iter().map(|m| iou(r, m)).collect()).collect();
+    let cost: Vec<Vec<f64>> = ious.iter().map(|row| row.iter().map(|v| 1.0 - v).collect()).collect();
+    let assign = if new_ids.is_empty() { vec![None; channels.len()] } else { hungarian(&cost) };
+    Ok(channels
+        .iter()
+        .enumerate()
+        .map(|(r, &(object_id, channel))| {
+            let (new_id, iou) = match assign[r] {
+                Some(c) if ious[r][c] >= min_iou => (Some(new_ids[c]), ious[r][c]),
+                _ => (None, assign[r].map_or(0.0, |c| ious[r][c])),
+            };
+            Match { object_id, channel, new_id, iou }
+        })
+        .collect())
+}
+
+/// Probability of channel `c` for every surfel.
+fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
+    let k = s.num_objects;
+    let mut p = vec![0.0f32; k];
+    (0..s.len())
+        .map(|i| {
+            softmax(&s.obj_logits[i * k..(i + 1) * k], &mut p);
+            p[c]
+        })
+        .collect()
+}
+
+/// The virtual cameras of step 3 around the surfels' footprint.
+pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for m in &s.means {
+        let p = DVec3::new(m[0] as f64, m[1] as f64, m[2] as f64);
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let centre = (lo + hi) * 0.5;
+    let size = (hi - lo).max_element().max(0.05);
+    // Far enough that the whole footprint fits a 60°-wide view.
+    let radius = (size * 1.2).max(0.3);
+    let k = Intrinsics::centered(opts.virtual_focal, opts.virtual_width, opts.virtual_height);
+    let els: Vec<f64> = opts.ring_elevations_deg.iter().map(|d| d.to_radians()).collect();
+    let mut cams = ring_views(centre, radius, &els, opts.ring_azimuths, k);
+    cams.push(below_view(DVec3::new(centre.x, centre.y, 0.0), radius, k));
+    cams
+}
+
+/// Steps 3–6: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
+/// count, the largest surfel displacement and the meshing and simulation times.
+pub fn simulate(
+    surfels: &mut Surfels,
+    objects: &[(u16, usize)],
+    scale: SceneScale,
+    opts: &UpdateOptions,
+    settings: &RenderSettings,
+    progress: &mut dyn FnMut(&str, u32, u32),
+) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
+    let t0 = Instant::now();
+    let cams = virtual_cameras(surfels, opts);
+    let ts = TsdfSettings::tran_d(scale.radius.max(0.05));
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for m in &surfels.means {
+        for a in 0..3 {
+            lo[a] = lo[a].min(m[a]);
+            hi[a] = hi[a].max(m[a]);
+        }
+    }
+    let margin = 8.0 * ts.voxel + 0.01;
+    let lo = [lo[0] - margin, lo[1] - margin, (lo[2] - margin).max(-margin)];
+    let hi = [hi[0] + margin, hi[1] + margin, hi[2] + margin];
+    let mut tsdf = TsdfVolume::new(lo, hi, ts.voxel).map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
+    let n_cams = cams.len() as u32;
+    for (i, cam) in cams.iter().enumerate() {
+        let out = render::<f32, _>(surfels, cam, settings)?;
+        let depth: Vec<f32> = match opts.mesh_depth {
+            MeshDepth::Expected => out.expected_depth().iter().zip(&out.alpha).map(|(&d, &a)| if a > 0.5 { d } else { 0.0 }).collect(),
+            MeshDepth::Median => out.median.clone(),
+        };
+        tsdf.integrate(cam, &depth, ts.trunc, ts.max_depth).map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
+        progress("meshing", i as u32 + 1, n_cams);
+    }
+    let mut mesh = tsdf.extract_mesh();
+    // Label vertices by the nearest object surfel.
+    let mut pts = Vec::new();
+    let mut labels = Vec::new();
+    let mut members: Vec<(u16, Vec<[f32; 3]>, Vec<u32>)> = Vec::new();
+    for &(id, c) in objects {
+        let p = channel_probs(surfels, c);
+        let idx: Vec<u32> = (0..surfels.len() as u32).filter(|&i| p[i as usize] > 0.5).collect();
+        let centres: Vec<[f32; 3]> = idx.iter().map(|&i| surfels.means[i as usize]).collect();
+        pts.extend_from_slice(&centres);
+        labels.extend(std::iter::repeat_n(id, centres.len()));
+        members.push((id, centres, idx));
+    }
+    if !mesh.vertices.is_empty() && !pts.is_empty() {
+        mesh.label_by_nearest(&pts, &labels).map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
+    }
+    let meshing_s = t0.elapsed().as_secs_f64();
+
+    let t1 = Instant::now();
+    let objs: Vec<ObjectSurfels> =
+        members.iter().map(|(id, c, idx)| ObjectSurfels { id: *id, centres: c, surfel_indices: idx }).collect();
+    let mesh_for_particles = if mesh.labels.is_some() { mesh.clone() } else { trand_physics::Mesh::default() };
+    let set = build_particles(&objs, &mesh_for_particles, opts.fill).map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
+    let mut max_disp = 0.0f32;
+    if !set.positions.is_empty() {
+        let mut solver =
+            MpmSolver::new(opts.mpm.clone(), &set.positions).map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
+        let frames = opts.mpm.frames;
+        solver
+            .run(frames, |i, n| progress("simulation", i, n))
+            .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
+        let pos = solver.positions();
+        let rots = match opts.motion {
+            SurfelMotion::TranslateRotate => Some(solver.rotations()),
+            SurfelMotion::Translate => None,
+        };
+        for (surfel, particle) in set.surfel_particles() {
+            let s = surfel as usize;
+            let old = surfels.means[s];
+            let new = pos[particle];
+            let d = ((new[0] - old[0]).powi(2) + (new[1] - old[1]).powi(2) + (new[2] - old[2]).powi(2)).sqrt();
+            max_disp = max_disp.max(d);
+            surfels.means[s] = new;
+            if let Some(r) = &rots {
+                let q = surfels.quats[s];
+                let q = r[particle] * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+                surfels.quats[s] = [q.w, q.x, q.y, q.z];
+            }
+        }
+    }
+    let simulation_s = t1.elapsed().as_secs_f64();
+    let io_mesh = trand_io::Mesh {
+        vertices: mesh.vertices.clone(),
+        colors: mesh.labels.as_ref().map(|l| l.iter().map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8)).collect()),
+        labels: mesh.labels.as_ref().map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
+        faces: mesh.faces.clone(),
+    };
+    Ok((io_mesh, set.positions.len(), max_disp, meshing_s, simulation_s))
+}
+
+/// Runs the whole update of `surfels` (the t = 0 run's object surfels) given the new view.
+#[allow(clippy::too_many_arguments)]
+pub fn update(
+    mut surfels: Surfels,
+    channels: &[(u16, usize)],
+    new_view: &View,
+    scale: SceneScale,
+    supervision: Supervision,
+    opts: &UpdateOptions,
+    progress: &mut dyn FnMut(&str, u32, u32),
+    on_step: &mut dyn FnMut(&StepReport),
+) -> Result<Update> {
+    let settings = RenderSettings {
+        background: opts.train.background,
+        near: opts.train.near as f64,
+        sh_degree: Some(opts.train.sh_degree),
+        maps: Maps::Rgb,
+    };
+    let t0 = Instant::now();
+    let object_aware = supervision == Supervision::ObjectAware;
+    let matches = if object_aware { detect(&surfels, channels, new_view, &settings, opts.min_iou)? } else { Vec::new() };
+    let removed: Vec<u16> = match &opts.removed {
+        Some(r) => {
+            for id in r {
+                if !channels.iter().any(|&(i, _)| i == *id) {
+                    return Err(PipelineError::Invalid(format!(
+                        "--removed {id}: no such object at t=0 (objects: {:?})",
+                        channels.iter().map(|c| c.0).collect::<Vec<_>>()
+                    )));
+                }
+            }
+            r.clone()
+        }
+        None => matches.iter().filter(|m| m.new_id.is_none()).map(|m| m.object_id).collect(),
+    };
+    let before = surfels.len();
+    for &id in &removed {
+        let c = channels.iter().find(|x| x.0 == id).expect("checked above").1;
+        let p = channel_probs(&surfels, c);
+        let keep: Vec<bool> = p.iter().map(|&v| v <= 0.5).collect();
+        surfels.retain(&keep);
+    }
+    let deleted = before - surfels.len();
+    let detection_s = t0.elapsed().as_secs_f64();
+
+    let remaining: Vec<(u16, usize)> = channels.iter().copied().filter(|c| !removed.contains(&c.0)).collect();
+    let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
+        if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
+            let (m, n, d, a, b) = simulate(&mut surfels, &remaining, scale, opts, &settings, progress)?;
+            (Some(m), n, d, a, b)
+        } else {
+            (None, 0, 0.0, 0.0, 0.0)
+        };
+
+    let t3 = Instant::now();
+    let mut curve = Vec::new();
+    if opts.refine == Stage::On && !surfels.is_empty() {
+        // Targets of the new image: new instance ids take the channel of the t = 0 object they matched;
+        // unmatched new instances are treated as background.
+        let mut view = new_view.clone();
+        let mut map: Vec<(u16, usize)> = Vec::new();
+        if object_aware {
+            if let Some(inst) = view.instance.as_mut() {
+                let lookup: Vec<(u16, u16)> = matches
+                    .iter()
+                    .filter(|m| !removed.contains(&m.object_id))
+                    .filter_map(|m| m.new_id.map(|n| (n, m.object_id)))
+                    .collect();
+                for v in inst.data.iter_mut() {
+                    *v = lookup.iter().find(|l| l.0 == *v).map_or(0, |l| l.1);
+                }
+            }
+            map = remaining.clone();
+        }
+        let ds = opts.downsample.unwrap_or(scale.downsample);
+        let tv = targets::build(&view, &map, surfels.num_objects, opts.train.background, supervision, ds)?;
+        let views = [tv];
+        let mut trainer = Trainer::new(surfels, opts.train.clone(), &views, scale.extent, supervision);
+        let last = opts.train.start_iteration + opts.train.iterations;
+        for it in opts.train.start_iteration + 1..=last {
+            let rep = trainer.step(it, it == last)?;
+            curve.push((it, rep.loss));
+            on_step(&rep);
+        }
+        surfels = trainer.surfels;
+    }
+    let refinement_s = t3.elapsed().as_secs_f64();
+    Ok(Update {
+        surfels,
+        matches,
+        removed,
+        deleted_surfels: deleted,
+        mesh,
+        num_particles,
+        max_displacement_m: max_disp,
+        detection_s,
+        meshing_s,
+        simulation_s,
+        refinement_s,
+        curve,
+    })
+}
