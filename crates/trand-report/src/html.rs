@@ -42,7 +42,7 @@ const CSS: &str = "body{font-family:system-ui,sans-serif;margin:24px;color:#222;
 h1{font-size:22px}h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}h3{font-size:15px}
 table{border-collapse:collapse;margin:8px 0 16px}th,td{border:1px solid #ccc;padding:3px 7px;font-size:13px;text-align:right}
 th:first-child,td:first-child{text-align:left}tr:nth-child(even){background:#f6f6f6}
-.views td,.views th{text-align:center;vertical-align:top}.views img{width:220px;image-rendering:pixelated;display:block}
+.views td,.views th{text-align:center;vertical-align:top}.views img{width:200px;image-rendering:pixelated;display:block}
 .thumbs{display:flex;flex-wrap:wrap;gap:8px}.thumbs figure{margin:0;font-size:11px;text-align:center}
 .thumbs img{width:160px;image-rendering:pixelated;display:block}.used{outline:3px solid #26828e}
 .plots{display:flex;flex-wrap:wrap;gap:12px}.bars{display:flex;gap:24px;flex-wrap:wrap}
