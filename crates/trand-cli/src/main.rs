@@ -15,6 +15,10 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Benchmark methods over sequences (t=0 and t=1), with tables and an HTML report.
+    Bench(cmd::bench::Args),
+    /// Generate a small scene, run t=0 and t=1, evaluate and write a report (a few minutes).
+    Demo(cmd::demo::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
     /// t=0: object-aware 2DGS reconstruction from the training views.
@@ -34,6 +38,8 @@ fn main() -> std::process::ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Bench(a) => cmd::bench::run(a),
+        Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
         Command::Reconstruct(a) => cmd::reconstruct::run(a),
         Command::Update(a) => cmd::update::run(a),
