@@ -215,7 +215,7 @@ pub fn reconstruct(
         None => (initial_surfels(&views, opts)?, cfg.start_iteration + 1),
     };
     let initial = surfels.len();
-    let extent = camera_extent(&views);
+    let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let preprocess_s = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();

@@ -53,8 +53,8 @@ pub struct Trainer<'a> {
 }
 
 /// `1.1 · max_i |C_i − mean(C)|` over the training cameras (2DGS `getNerfppNorm`).
-pub fn camera_extent(views: &[TrainView]) -> f32 {
-    let centres: Vec<glam::DVec3> = views.iter().map(|v| v.camera.center()).collect();
+pub fn camera_extent(cameras: &[trand_core::Camera]) -> f32 {
+    let centres: Vec<glam::DVec3> = cameras.iter().map(|c| c.center()).collect();
     let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len().max(1) as f64;
     (1.1 * centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max)) as f32
 }

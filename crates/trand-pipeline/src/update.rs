@@ -98,6 +98,17 @@ pub struct SceneScale {
     pub downsample: u32,
 }
 
+impl SceneScale {
+    /// The scale of a t = 0 run trained on `cameras`.
+    pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
+        let extent = crate::trainer::camera_extent(cameras);
+        let radius = trand_physics::focus_point(cameras)
+            .map(|f| cameras.iter().map(|c| (c.center() - f).length()).sum::<f64>() / cameras.len().max(1) as f64)
+            .unwrap_or(0.5) as f32;
+        Self { extent, radius, downsample }
+    }
+}
+
 impl Default for UpdateOptions {
     fn default() -> Self {
         Self {

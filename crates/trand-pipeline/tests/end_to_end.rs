@@ -20,14 +20,8 @@ fn metrics(surfels: &trand_core::Surfels, views: &[View]) -> Metrics {
 }
 
 fn scale(seq: &Sequence, downsample: u32) -> SceneScale {
-    let vs = select_train_views(&seq.train_t0, ViewCount::Six);
-    let cams: Vec<_> = vs.iter().map(|v| v.camera).collect();
-    let c: Vec<glam::DVec3> = cams.iter().map(|c| c.center()).collect();
-    let mean = c.iter().copied().sum::<glam::DVec3>() / c.len() as f64;
-    let extent = (1.1 * c.iter().map(|p| (*p - mean).length()).fold(0.0, f64::max)) as f32;
-    let f = trand_physics::focus_point(&cams).expect("cameras look at a common point");
-    let radius = (c.iter().map(|p| (*p - f).length()).sum::<f64>() / c.len() as f64) as f32;
-    SceneScale { extent, radius, downsample }
+    let cams: Vec<_> = select_train_views(&seq.train_t0, ViewCount::Six).iter().map(|v| v.camera).collect();
+    SceneScale::from_cameras(&cams, downsample)
 }
 
 /// Reconstructs with `iterations` at `downsample`, then updates; returns (t0, t1) metrics and the

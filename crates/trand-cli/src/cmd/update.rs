@@ -156,15 +156,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         12 => ViewCount::Twelve,
         _ => ViewCount::Six,
     };
-    let t0_views: Vec<_> = select_train_views(&seq.train_t0, vc);
-    let centres: Vec<glam::DVec3> = t0_views.iter().map(|v| v.camera.center()).collect();
-    let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len().max(1) as f64;
-    let extent = (1.1 * centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max)) as f32;
-    let cams: Vec<_> = t0_views.iter().map(|v| v.camera).collect();
-    let radius = trand_physics::focus_point(&cams)
-        .map(|f| cams.iter().map(|c| (c.center() - f).length()).sum::<f64>() / cams.len() as f64)
-        .unwrap_or(0.5) as f32;
-    let scale = trand_pipeline::update::SceneScale { extent, radius, downsample: ropts.downsample };
+    let cams: Vec<_> = select_train_views(&seq.train_t0, vc).iter().map(|v| v.camera).collect();
+    let scale = trand_pipeline::update::SceneScale::from_cameras(&cams, ropts.downsample);
 
     let pb = ProgressBar::new(100);
     pb.set_style(ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {msg}").expect("valid template").progress_chars("=> "));
