@@ -12,7 +12,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use rand::{RngExt, SeedableRng};
+use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use trand_core::{math::softmax, Surfels};
 use trand_io::{select_train_views, Sequence, ViewCount};
@@ -162,7 +162,6 @@ fn visual_hull_points(views: &[TrainView], cfg: &InitConfig, target: usize) -> R
                 .into(),
         ));
     }
-    let _ = rng.random::<u32>();
     Ok(kept)
 }
 

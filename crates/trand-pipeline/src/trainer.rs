@@ -14,7 +14,7 @@
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
 use trand_core::Surfels;
-use trand_render::{render, Maps, OutputGrads, ParamsOf, RenderSettings};
+use trand_render::{render, Maps, OutputGrads, RenderSettings};
 use trand_train::config::TrainConfig;
 use trand_train::losses::{dice::dice, geometry, object::object_aware_loss, photometric::photometric};
 use trand_train::{densify_and_prune, reset_opacity, Adam, DensifyStats};
@@ -179,11 +179,4 @@ impl<'a> Trainer<'a> {
         rep.num_surfels = self.surfels.len();
         Ok(rep)
     }
-}
-
-/// Gradients as f32 surfels (helper for tests).
-pub fn grads_to_surfels(like: &Surfels, g: &ParamsOf<f32>) -> Surfels {
-    let mut s = like.zeros_like();
-    g.write_into(&mut s);
-    s
 }

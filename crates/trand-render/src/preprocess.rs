@@ -77,8 +77,6 @@ struct Geometry<R> {
     rot: [[R; 3]; 3],
     qn: [R; 4],
     scale: [R; 2],
-    cu: [R; 3],
-    cv: [R; 3],
     pv: [R; 3],
     t_u: [R; 3],
     t_v: [R; 3],
@@ -107,7 +105,7 @@ fn geometry<R: Real, P: SurfelParams<R>>(p: &P, i: usize, cam: &CamR<R>) -> Opti
     let t_u = [cam.fx * cu[0] + cam.cx * cu[2], cam.fx * cv[0] + cam.cx * cv[2], cam.fx * pv[0] + cam.cx * pv[2]];
     let t_v = [cam.fy * cu[1] + cam.cy * cu[2], cam.fy * cv[1] + cam.cy * cv[2], cam.fy * pv[1] + cam.cy * pv[2]];
     let t_w = [cu[2], cv[2], pv[2]];
-    Some(Geometry { rot, qn, scale, cu, cv, pv, t_u, t_v, t_w })
+    Some(Geometry { rot, qn, scale, pv, t_u, t_v, t_w })
 }
 
 /// Screen-space box of the contour `u² + v² = c2`: `(centre, half-extent)`, `None` when the contour is
@@ -321,7 +319,6 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
         grot[r][2] = d_tw_world[r];
     }
     let dq = normalize_vjp(p.quat(i), rotmat_vjp(geo.qn, grot));
-    let _ = (geo.cu, geo.cv, geo.pv);
 
     // Colours: SH coefficients and the view-direction term.
     let nc = num_coeffs(sh_degree);
