@@ -58,6 +58,8 @@ pub fn softmax_vjp<R: Real>(p: &[R], g: &[R], out: &mut [R]) {
 /// Returns `None` for a zero or non-finite quaternion, so callers can cull the surfel instead of
 /// rendering NaN.
 #[inline]
+// `!(a > b)` on purpose: NaN fails the test and is culled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub fn quat_to_rotmat<R: Real>(q: [R; 4]) -> Option<([[R; 3]; 3], [R; 4])> {
     let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
     if !(n2 > R::from_f64(1e-24)) || !n2.is_finite() {

@@ -106,8 +106,11 @@ fn view_count(n: u32) -> Result<ViewCount> {
     }
 }
 
+/// `(object id, channel)` pairs.
+pub type Channels = Vec<(u16, usize)>;
+
 /// Builds the training views of t = 0.
-pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<(Vec<TrainView>, Vec<(u16, usize)>)> {
+pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<(Vec<TrainView>, Channels)> {
     let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
     if chosen.is_empty() {
         return Err(PipelineError::Invalid(format!("{}: no training views at t=0", seq.root.display())));

@@ -63,7 +63,8 @@ impl<'a> Trainer<'a> {
     pub fn new(surfels: Surfels, cfg: TrainConfig, views: &'a [TrainView], extent: f32, supervision: Supervision) -> Self {
         let adam = Adam::new(&surfels, cfg.adam);
         let stats = DensifyStats::new(surfels.len());
-        let rng = Pcg64::seed_from_u64(cfg.seed ^ 0x7472_616e_64);
+        // Salted with "trand" in ASCII so the view order differs from the initialisation's stream.
+        let rng = Pcg64::seed_from_u64(cfg.seed ^ 0x0074_7261_6e64);
         Self { surfels, adam, stats, lr_extent: extent as f64, extent, cfg, views, supervision, rng, stack: Vec::new() }
     }
 

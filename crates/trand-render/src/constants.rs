@@ -16,6 +16,8 @@ pub const SIGMA_CUTOFF: f64 = 3.0;
 pub const FILTER_INV_SQUARE: f64 = 2.0;
 
 /// The filter's reach in pixels used for the binning radius, `3 · √2/2` (the reference's `3·FilterSize`).
+/// The truncated literal is the reference's own (`FilterSize = 0.707106`), kept so radii match it exactly.
+#[allow(clippy::approx_constant)]
 pub const FILTER_RADIUS: f64 = 3.0 * 0.707106;
 
 /// Surfels whose centre is this close to the camera (metres, camera z) are culled, and per-pixel

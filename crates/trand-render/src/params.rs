@@ -9,6 +9,9 @@ use trand_core::{sh::num_coeffs, Real, Surfels};
 /// Per-surfel parameter access in precision `R` (raw, pre-activation values; see [`Surfels`]).
 pub trait SurfelParams<R: Real>: Sync {
     fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
     fn sh_degree(&self) -> u32;
     fn num_objects(&self) -> usize;
     fn mean(&self, i: usize) -> [R; 3];

@@ -83,6 +83,8 @@ struct Geometry<R> {
     t_w: [R; 3],
 }
 
+// `!(a > b)` on purpose: NaN fails the test and is culled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 fn geometry<R: Real, P: SurfelParams<R>>(p: &P, i: usize, cam: &CamR<R>) -> Option<Geometry<R>> {
     let mean = p.mean(i);
     let ls = p.log_scale(i);
@@ -111,6 +113,8 @@ fn geometry<R: Real, P: SurfelParams<R>>(p: &P, i: usize, cam: &CamR<R>) -> Opti
 /// Screen-space box of the contour `u² + v² = c2`: `(centre, half-extent)`, `None` when the contour is
 /// not entirely in front of the camera.
 #[inline]
+// `!(a > b)` on purpose: NaN fails the test and is culled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 fn conic_box<R: Real>(t_u: [R; 3], t_v: [R; 3], t_w: [R; 3], c2: R) -> Option<([R; 2], [R; 2], R)> {
     let t = [c2, c2, -R::ONE];
     let d = t[0] * t_w[0] * t_w[0] + t[1] * t_w[1] * t_w[1] + t[2] * t_w[2] * t_w[2];
@@ -152,6 +156,8 @@ fn view_dir<R: Real>(mean: [R; 3], cam: &CamR<R>) -> ([R; 3], R) {
 
 /// Forward preprocess of surfel `i`. Writes the object probabilities into `probs` (length K) and returns
 /// `None` when the surfel is culled (behind the near plane, off-screen, degenerate or non-finite).
+// `!(a > b)` on purpose: NaN fails the test and is culled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     p: &P,
     i: usize,

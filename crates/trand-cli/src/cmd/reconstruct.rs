@@ -158,10 +158,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let mut on_step = |r: &trand_pipeline::StepReport, s: &trand_core::Surfels| {
         pb.set_position((r.iteration - opts.train.start_iteration) as u64);
         pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
-        if pb.is_hidden() && r.iteration % 100 == 0 {
+        if pb.is_hidden() && r.iteration.is_multiple_of(100) {
             eprintln!("iteration {}: loss {:.4}, {} surfels", r.iteration, r.loss, r.num_surfels);
         }
-        if r.iteration % every == 0 || cancel.load(Ordering::SeqCst) {
+        if r.iteration.is_multiple_of(every) || cancel.load(Ordering::SeqCst) {
             last_ckpt = write_checkpoint(&ckpt, s, r.iteration);
         }
     };

@@ -224,10 +224,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let mesh = up.mesh.clone();
     trand_pipeline::outputs::write_run_with(&a.out, &out_json, &cfg, &up.surfels, &renders, &|dir| {
-        if let Some(m) = &mesh {
-            if !m.vertices.is_empty() {
-                trand_io::write_mesh_ply(&dir.join("mesh.ply"), m)?;
-            }
+        if let Some(m) = mesh.as_ref().filter(|m| !m.vertices.is_empty()) {
+            trand_io::write_mesh_ply(&dir.join("mesh.ply"), m)?;
         }
         Ok(())
     })?;
