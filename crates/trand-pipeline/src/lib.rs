@@ -6,6 +6,8 @@
 //! * [`trainer`]: one optimisation loop (render → losses → backward → Adam → densify), used at t = 0
 //!   and for the t = 1 refinement.
 //! * [`reconstruct`]: the t = 0 run from random initialisation, with the paper's ablations.
+//! * [`update`]: the t = 1 scene update — removal detection, deletion, TSDF mesh, MLS-MPM, single-image
+//!   refinement.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
 pub mod outputs;
