@@ -5,8 +5,8 @@
 //!   background blacked out, the colour-coded instance mask, and the K-channel one-hot object map.
 //! * [`trainer`]: one optimisation loop (render → losses → backward → Adam → densify), used at t = 0
 //!   and for the t = 1 refinement.
-//! * [`reconstruct`]: the t = 0 run from random initialisation, with the paper's ablations.
-//! * [`update`]: the t = 1 scene update — removal detection, deletion, TSDF mesh, MLS-MPM, single-image
+//! * [`mod@reconstruct`]: the t = 0 run from random initialisation, with the paper's ablations.
+//! * [`mod@update`]: the t = 1 scene update — removal detection, deletion, TSDF mesh, MLS-MPM, single-image
 //!   refinement.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
