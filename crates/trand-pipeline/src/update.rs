@@ -50,6 +50,10 @@ pub enum SurfelMotion {
     Translate,
     /// Centres and orientation (polar rotation of the particle's deformation gradient).
     TranslateRotate,
+    /// Each object moves rigidly by the best fit (Kabsch) of its surfels' particle displacements:
+    /// the simulation decides where an object falls, but the very soft material of the paper (it sags
+    /// by a third of its height under gravity) does not squash its shape.
+    RigidPerObject,
 }
 
 /// A stage that can be switched off for the ablations.
@@ -320,20 +324,26 @@ pub fn simulate(
         let pos = solver.positions();
         let rots = match opts.motion {
             SurfelMotion::TranslateRotate => Some(solver.rotations()),
-            SurfelMotion::Translate => None,
+            _ => None,
         };
+        let before: Vec<[f32; 3]> = surfels.means.clone();
         for (surfel, particle) in set.surfel_particles() {
             let s = surfel as usize;
-            let old = surfels.means[s];
-            let new = pos[particle];
-            let d = ((new[0] - old[0]).powi(2) + (new[1] - old[1]).powi(2) + (new[2] - old[2]).powi(2)).sqrt();
-            max_disp = max_disp.max(d);
-            surfels.means[s] = new;
+            surfels.means[s] = pos[particle];
             if let Some(r) = &rots {
                 let q = surfels.quats[s];
                 let q = r[particle] * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
                 surfels.quats[s] = [q.w, q.x, q.y, q.z];
             }
+        }
+        if opts.motion == SurfelMotion::RigidPerObject {
+            for (_, _, idx) in &members {
+                rigid_fit(surfels, &before, idx);
+            }
+        }
+        for (b, a) in before.iter().zip(&surfels.means) {
+            let d = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+            max_disp = max_disp.max(d);
         }
     }
     let simulation_s = t1.elapsed().as_secs_f64();
@@ -344,6 +354,34 @@ pub fn simulate(
         faces: mesh.faces.clone(),
     };
     Ok((io_mesh, set.positions.len(), max_disp, meshing_s, simulation_s))
+}
+
+/// Replaces the simulated positions of the surfels `idx` (currently in `surfels.means`, previously at
+/// `before`) by the rigid motion that fits them best in the least-squares sense (Kabsch): `R` is the
+/// polar rotation of `Σ (q − q̄)(p − p̄)ᵀ`, `t = q̄ − R p̄`; the surfels' orientations turn by `R` too.
+fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
+    if idx.len() < 3 {
+        return;
+    }
+    let v = |a: [f32; 3]| DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64);
+    let n = idx.len() as f64;
+    let pbar = idx.iter().map(|&i| v(before[i as usize])).sum::<DVec3>() / n;
+    let qbar = idx.iter().map(|&i| v(surfels.means[i as usize])).sum::<DVec3>() / n;
+    let mut m = glam::DMat3::ZERO;
+    for &i in idx {
+        let (p, q) = (v(before[i as usize]) - pbar, v(surfels.means[i as usize]) - qbar);
+        m += glam::DMat3::from_cols(p * q.x, p * q.y, p * q.z).transpose();
+    }
+    let r = trand_physics::mpm::polar_rotation(m, glam::DQuat::IDENTITY);
+    let rf = Quat::from_xyzw(r.x as f32, r.y as f32, r.z as f32, r.w as f32);
+    for &i in idx {
+        let i = i as usize;
+        let p = r * (v(before[i]) - pbar) + qbar;
+        surfels.means[i] = [p.x as f32, p.y as f32, p.z as f32];
+        let q = surfels.quats[i];
+        let q = rf * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+        surfels.quats[i] = [q.w, q.x, q.y, q.z];
+    }
 }
 
 /// Runs the whole update of `surfels` (the t = 0 run's object surfels) given the new view.
@@ -447,4 +485,48 @@ pub fn update(
         refinement_s,
         curve,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trand_core::surfels::Surfel;
+
+    #[test]
+    fn rigid_fit_recovers_a_known_rotation_and_translation_from_noisy_positions() {
+        let mut s = Surfels::new(0, 2).unwrap();
+        let mut before = Vec::new();
+        for i in 0..50 {
+            let t = i as f32 * 0.37;
+            let p = [0.05 * t.cos(), 0.04 * (1.3 * t).sin(), 0.002 * i as f32];
+            before.push(p);
+            s.push(&Surfel {
+                mean: p,
+                log_scale: [-5.0; 2],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                opacity_logit: 0.0,
+                sh_dc: [0.0; 3],
+                mask_dc: [0.0; 3],
+                obj_logits: vec![],
+            });
+        }
+        let r = Quat::from_axis_angle(glam::Vec3::new(1.0, 0.5, 0.2).normalize(), 0.6);
+        let t = glam::Vec3::new(0.02, -0.01, -0.05);
+        // Simulated positions: the rigid motion plus a ±0.5 mm wobble (the soft material's sag).
+        for (i, m) in s.means.iter_mut().enumerate() {
+            let q = r * glam::Vec3::from_array(before[i]) + t;
+            let wobble = 0.0005 * ((i as f32 * 1.7).sin());
+            *m = [q.x + wobble, q.y - wobble, q.z + wobble];
+        }
+        let idx: Vec<u32> = (0..50).collect();
+        rigid_fit(&mut s, &before, &idx);
+        for (i, m) in s.means.iter().enumerate() {
+            let q = r * glam::Vec3::from_array(before[i]) + t;
+            let e = (glam::Vec3::from_array(*m) - q).length();
+            assert!(e < 1.5e-3, "surfel {i}: {e} m from the rigid motion");
+        }
+        let q = s.quats[0];
+        let got = Quat::from_xyzw(q[1], q[2], q[3], q[0]);
+        assert!(got.angle_between(r) < 0.02, "orientation off by {} rad", got.angle_between(r));
+    }
 }

@@ -39,9 +39,10 @@ pub struct Args {
     /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
     #[arg(long, value_parser = parse_depth)]
     pub mesh_depth: Option<MeshDepth>,
-    /// Also rotate each surfel by its particle's polar rotation.
-    #[arg(long)]
-    pub rotate_surfels: bool,
+    /// How surfels follow the simulation: translate (each with its particle, the paper), rotate (also
+    /// turn by the particle's polar rotation) or rigid (each object by the best rigid fit of its particles).
+    #[arg(long, value_parser = parse_motion)]
+    pub motion: Option<SurfelMotion>,
     /// TOML file with any of the update options.
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -52,6 +53,15 @@ fn parse_stage(s: &str) -> Result<Stage, String> {
         "on" => Ok(Stage::On),
         "off" => Ok(Stage::Off),
         _ => Err(format!("`{s}`: expected on or off")),
+    }
+}
+
+fn parse_motion(s: &str) -> Result<SurfelMotion, String> {
+    match s {
+        "translate" => Ok(SurfelMotion::Translate),
+        "rotate" => Ok(SurfelMotion::TranslateRotate),
+        "rigid" => Ok(SurfelMotion::RigidPerObject),
+        _ => Err(format!("`{s}`: expected translate, rotate or rigid")),
     }
 }
 
@@ -143,9 +153,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         opts.removed = a.removed.clone();
     }
     opts.mesh_depth = a.mesh_depth.unwrap_or(opts.mesh_depth);
-    if a.rotate_surfels {
-        opts.motion = SurfelMotion::TranslateRotate;
-    }
+    opts.motion = a.motion.unwrap_or(opts.motion);
     opts.train.background = ropts.train.background;
     opts.train.sh_degree = ropts.train.sh_degree;
     opts.train.near = ropts.train.near;
@@ -202,6 +210,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "num_particles": up.num_particles,
         "max_surfel_displacement_m": up.max_displacement_m,
         "physics": opts.physics,
+        "motion": opts.motion,
         "refine": opts.refine,
         "timings": {
             "detection_s": up.detection_s,
