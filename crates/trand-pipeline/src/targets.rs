@@ -124,7 +124,8 @@ pub fn build(
                 }
             }
             let id = votes.iter().max_by_key(|v| (v.1, std::cmp::Reverse(v.0))).map_or(0, |v| v.0);
-            if lut[id as usize] == usize::MAX {
+            // Whole-image supervision ignores the masks, so their ids need not be known objects.
+            if supervision == Supervision::ObjectAware && lut[id as usize] == usize::MAX {
                 return Err(err(format!("instance id {id} is not one of the sequence's objects")));
             }
             let o = y * w + x;
@@ -170,6 +171,27 @@ mod tests {
             }
         }
         assert_eq!(palette(0), [0.0; 3]);
+    }
+
+    #[test]
+    fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
+        let k = trand_core::Intrinsics::centered(10.0, 4, 2);
+        let cam = Camera::look_at(k, glam::DVec3::new(0.0, 0.0, 1.0), glam::DVec3::ZERO, glam::DVec3::Y);
+        let view = View {
+            name: "v".into(),
+            frame: 0,
+            camera: cam,
+            rgb: trand_io::Image::from_vec(4, 2, 3, vec![128; 24]),
+            instance: trand_io::Image::from_vec(4, 2, 1, vec![0, 0, 3, 3, 0, 0, 3, 3]),
+            depth: None,
+        };
+        let t = build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
+        assert_eq!(t.rgb.len(), 24);
+        assert!(t.mask.is_empty() && t.one_hot.is_empty());
+        assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, 1).is_err());
+        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 1).expect("id 3 is known");
+        assert_eq!(t.one_hot[2 * 15 + 1], 1.0);
+        assert_eq!(t.rgb[0], 0.0, "background blacked out");
     }
 
     #[test]
