@@ -84,6 +84,22 @@ pub enum IoError {
 }
 
 impl IoError {
+    /// `Ok` when an image of `w × h` read from `path` has the camera's size `k`; else
+    /// [`IoError::SizeMismatch`] naming the camera `field` that gave the expected size.
+    pub(crate) fn check_size(w: u32, h: u32, k: &trand_core::Intrinsics, path: &std::path::Path, field: String) -> Result<(), Self> {
+        if (w, h) == (k.width, k.height) {
+            return Ok(());
+        }
+        Err(IoError::SizeMismatch {
+            path: path.into(),
+            field,
+            found_w: w,
+            found_h: h,
+            expected_w: k.width,
+            expected_h: k.height,
+        })
+    }
+
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         let path = path.into();
         if source.kind() == std::io::ErrorKind::NotFound {

@@ -123,19 +123,7 @@ fn read_file(
         } else {
             Split::Train
         };
-        let size_check = |w: u32, h: u32, p: &Path, field: &str| {
-            if (w, h) != (k.width, k.height) {
-                return Err(IoError::SizeMismatch {
-                    path: p.into(),
-                    field: f.name(field),
-                    found_w: w,
-                    found_h: h,
-                    expected_w: k.width,
-                    expected_h: k.height,
-                });
-            }
-            Ok(())
-        };
+        let size_check = |w: u32, h: u32, p: &Path, field: &str| IoError::check_size(w, h, &k, p, f.name(field));
         let rgb = if opts.rgb.yes() {
             let p = resolve(base, file);
             let img = read_rgb8(&p)?;
