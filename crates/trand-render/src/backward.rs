@@ -26,10 +26,11 @@
 use trand_core::Real;
 
 use crate::binning::Bins;
-use crate::camera::{cross, CamR};
+use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{span_mask, tile_pixels, Plane};
-use crate::intersect::{intersect, ndc_depth, Row};
+use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
+use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
 
@@ -62,8 +63,10 @@ pub struct GradMaps<'a, R> {
 }
 
 /// Backward pass of tile `t`: writes one record per pair of the tile into `pairs`
-/// (`(tile_start[t+1] − tile_start[t]) × stride` values, zero-initialised).
+/// (`(tile_start[t+1] − tile_start[t]) × stride` values, zero-initialised). Called through
+/// [`crate::simd::backward_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 pub fn backward_tile<R: Real>(
     t: usize,
     bins: &Bins,
@@ -154,8 +157,12 @@ pub fn backward_tile<R: Real>(
     let list = bins.tile(t);
     let two = R::from_f64(2.0);
     let filt2 = R::from_f64(2.0 * FILTER_INV_SQUARE);
-    let mut acc = [z; rec::OBJ];
-    let mut acc_obj = [z; crate::MAX_OBJECTS];
+    let zv = V::splat(z);
+    // Per-lane partial sums of the pair's record; summed over the lanes when the pair is done.
+    let mut acc = [zv; rec::OBJ];
+    let mut acc_obj = [zv; crate::MAX_OBJECTS];
+    let xs: [V<R>; 2] =
+        std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))));
 
     for pos in (0..max_last).rev() {
         while next < order.len() && last[order[next] as usize] as usize > pos {
@@ -169,102 +176,123 @@ pub fn backward_tile<R: Real>(
         let (x0, y0) = (p.bbox[0].max(tx0) - tx0, p.bbox[1].max(ty0) - ty0);
         let (x1, y1) = (p.bbox[2].min(tx1) - tx0, p.bbox[3].min(ty1) - ty0);
         let span = span_mask(x0, x1);
+        let pos_v = pos as u32;
         let mut touched = false;
         for ly in y0..=y1 {
-            let mut bits = active[ly as usize] & span;
+            let bits = active[ly as usize] & span;
             if bits == 0 {
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
+            let Some((c0, c1)) = row_columns(p, yr) else { continue };
+            let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
+            if c0 > c1 {
+                continue;
+            }
+            let bits = bits & span_mask(c0, c1);
+            if bits == 0 {
+                continue;
+            }
             let row = Row::new(p, yr);
-            while bits != 0 {
-                let lx = bits.trailing_zeros() as i32;
-                bits &= bits - 1;
-                let idx = ((ly * TILE as i32 + lx) as usize) & (TILE_PIXELS - 1);
-                let xr = R::from_f64((tx0 + lx) as f64);
-                let Some(h) = intersect(p, &row, xr, cam.near) else { continue };
+            for (half, &xr) in xs.iter().enumerate() {
+                let hb = (bits >> (half * LANES)) as u8;
+                if hb == 0 {
+                    continue;
+                }
+                let base = ly as usize * TILE as usize + half * LANES;
+                let px = base..base + LANES;
+                let h = intersect_lanes(p, &row, xr, cam.near, M::from_bits(hb));
+                if !h.valid.any() {
+                    continue;
+                }
                 if !touched {
-                    acc = [z; rec::OBJ];
-                    acc_obj[..k_obj].fill(z);
+                    acc = [zv; rec::OBJ];
+                    acc_obj[..k_obj].fill(zv);
                     touched = true;
                 }
                 let a = h.alpha;
-                let one_m = R::ONE - a;
-                let t_i = tr[idx] / one_m;
+                let one_m = rsub(R::ONE, a);
+                let tr_v = V::load(&tr[px.clone()]);
+                let t_i = tr_v / one_m;
                 let w = a * t_i;
 
                 // v_i = Σ_q q_i·g_q + z_i g_D + g_A (+ g_w): blended quantities and their ∂/∂q_i.
-                let mut v = h.z * g_d[idx] + g_a[idx];
+                let g_dv = V::load(&g_d[px.clone()]);
+                let mut v = h.z * g_dv + V::load(&g_a[px.clone()]);
                 for c in 0..3 {
-                    let g = g_rgb[c][idx];
+                    let g = V::load(&g_rgb[c][px.clone()]);
                     acc[rec::RGB + c] += w * g;
-                    v += p.rgb[c] * g;
-                    let g = g_nrm[c][idx];
+                    v += g * p.rgb[c];
+                    let g = V::load(&g_nrm[c][px.clone()]);
                     acc[rec::NORMAL + c] += w * g;
-                    v += p.normal[c] * g;
+                    v += g * p.normal[c];
                 }
                 if has_mask {
                     for c in 0..3 {
-                        let g = g_msk[c][idx];
+                        let g = V::load(&g_msk[c][px.clone()]);
                         acc[rec::MASK + c] += w * g;
-                        v += p.mask[c] * g;
+                        v += g * p.mask[c];
                     }
                 }
                 if has_obj {
                     for ((ao, &pc), gp) in acc_obj.iter_mut().zip(pr).zip(&g_obj) {
-                        let g = gp[idx];
+                        let g = V::load(&gp[px.clone()]);
                         *ao += w * g;
-                        v += pc * g;
+                        v += g * pc;
                     }
                 }
-                let mut dz = w * g_d[idx];
-                if pos as u32 == medpos[idx] {
-                    dz += g_med[idx];
+                let mut dz = w * g_dv;
+                let mut at_median = [false; LANES];
+                for (l, m) in at_median.iter_mut().enumerate() {
+                    *m = medpos[base + l] == pos_v;
                 }
+                dz += select(M(at_median) & h.valid, V::load(&g_med[px.clone()]), zv);
                 if has_dist {
-                    let (m, dm) = ndc_depth(h.z);
-                    let a_f = R::ONE - t_final[idx];
-                    let g_w = (m2f[idx] + m * m * a_f - two * m * m1f[idx]) * g_dist[idx];
+                    let (m, dm) = ndc_depth_lanes(h.z);
+                    let a_f = rsub(R::ONE, V::load(&t_final[px.clone()]));
+                    let (m1v, g_distv) = (V::load(&m1f[px.clone()]), V::load(&g_dist[px.clone()]));
+                    let g_w = (V::load(&m2f[px.clone()]) + m * m * a_f - m * two * m1v) * g_distv;
                     v += g_w;
-                    dz += two * w * (m * a_f - m1f[idx]) * g_dist[idx] * dm;
+                    dz += w * two * (m * a_f - m1v) * g_distv * dm;
                 }
-                let bracket = v - suffix[idx];
-                suffix[idx] = a * v + one_m * suffix[idx];
-                let d_alpha = t_i * bracket - g_bg[idx] / one_m;
-                tr[idx] = t_i;
+                let s_v = V::load(&suffix[px.clone()]);
+                let bracket = v - s_v;
+                select(h.valid, a * v + one_m * s_v, s_v).store(&mut suffix[px.clone()]);
+                let d_alpha = select(h.valid, t_i * bracket - V::load(&g_bg[px.clone()]) / one_m, zv);
+                select(h.valid, t_i, tr_v).store(&mut tr[px.clone()]);
 
                 // α = min(0.99, o·G), G = exp(−ρ/2).
-                let d_g = if h.clamped {
-                    z
-                } else {
-                    acc[rec::OPACITY] += h.g * d_alpha;
-                    p.opacity * d_alpha
-                };
-                let d_rho = R::from_f64(-0.5) * h.g * d_g;
-                let (gu, gv) = if h.object_space {
-                    (two * h.u * d_rho + dz * p.t_w[0], two * h.v * d_rho + dz * p.t_w[1])
-                } else {
-                    acc[rec::CENTER] += filt2 * (p.center[0] - xr) * d_rho;
-                    acc[rec::CENTER + 1] += filt2 * (p.center[1] - yr) * d_rho;
-                    (dz * p.t_w[0], dz * p.t_w[1])
-                };
-                let inv = R::ONE / h.pz;
-                let gp = [gu * inv, gv * inv, -(gu * h.u + gv * h.v) * inv];
+                acc[rec::OPACITY] += select(h.clamped, zv, h.g * d_alpha);
+                let d_g = select(h.clamped, zv, d_alpha * p.opacity);
+                let d_rho = h.g * d_g * R::from_f64(-0.5);
+                let (dzu, dzv) = (dz * p.t_w[0], dz * p.t_w[1]);
+                let gu = select(h.object_space, h.u * two * d_rho + dzu, dzu);
+                let gv = select(h.object_space, h.v * two * d_rho + dzv, dzv);
+                let filter = h.valid & !h.object_space;
+                acc[rec::CENTER] += select(filter, rsub(p.center[0], xr) * filt2 * d_rho, zv);
+                acc[rec::CENTER + 1] += select(filter, d_rho * (filt2 * (p.center[1] - yr)), zv);
+                let inv = V::splat(R::ONE) / h.pz;
+                let gp = [gu * inv, gv * inv, rsub(R::ZERO, gu * h.u + gv * h.v) * inv];
                 let k = [xr * p.t_w[0] - p.t_u[0], xr * p.t_w[1] - p.t_u[1], xr * p.t_w[2] - p.t_u[2]];
-                let gk = cross(row.l, gp);
-                let gl = cross(gp, k);
-                let uv1 = [h.u, h.v, R::ONE];
+                let l = row.l;
+                let gk = [gp[2] * l[1] - gp[1] * l[2], gp[0] * l[2] - gp[2] * l[0], gp[1] * l[0] - gp[0] * l[1]];
+                let gl = [gp[1] * k[2] - gp[2] * k[1], gp[2] * k[0] - gp[0] * k[2], gp[0] * k[1] - gp[1] * k[0]];
+                let uv1 = [h.u, h.v, V::splat(R::ONE)];
                 for c in 0..3 {
                     acc[rec::T + c] -= gk[c];
                     acc[rec::T + 3 + c] -= gl[c];
-                    acc[rec::T + 6 + c] += xr * gk[c] + yr * gl[c] + dz * uv1[c];
+                    acc[rec::T + 6 + c] += xr * gk[c] + gl[c] * yr + dz * uv1[c];
                 }
             }
         }
         if touched {
             let out = &mut pairs[pos * stride..(pos + 1) * stride];
-            out[..rec::OBJ].copy_from_slice(&acc);
-            out[rec::OBJ..].copy_from_slice(&acc_obj[..k_obj]);
+            for (o, a) in out[..rec::OBJ].iter_mut().zip(&acc) {
+                *o = a.sum();
+            }
+            for (o, a) in out[rec::OBJ..].iter_mut().zip(&acc_obj[..k_obj]) {
+                *o = a.sum();
+            }
         }
     }
 }

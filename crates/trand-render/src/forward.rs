@@ -2,8 +2,11 @@
 //! maps of the reference rasterizer).
 //!
 //! Surfel-outer, pixel-inner: each surfel of the tile's depth-sorted list visits only the pixels of its
-//! evaluation box (see [`crate::preprocess`]). A 16-bit mask per tile row marks the pixels still
-//! blending, so saturated pixels cost nothing and the tile stops once every mask is empty. The
+//! evaluation box (see [`crate::preprocess`]), and on each row only the columns where its alpha can
+//! reach 1/255 ([`crate::intersect::row_columns`]). A 16-bit mask per tile row marks the pixels still
+//! blending, so saturated pixels cost nothing and the tile stops once every mask is empty. A row is
+//! processed as two groups of eight pixels ([`crate::lanes`]): one vector instruction per operation
+//! for eight pixels, with masks where the scalar code branched. The
 //! accumulators live in fixed `[R; 256]` arrays on the stack (channel-planar, index `ly·16 + lx`).
 //! Per pixel, with `T` the transmittance in front of surfel `i` and `w_i = α_i T`:
 //!
@@ -24,7 +27,8 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
-use crate::intersect::{intersect, ndc_depth, Row};
+use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
+use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
 use crate::preprocess::Proj;
 
@@ -56,7 +60,9 @@ pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usi
 }
 
 /// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`.
+/// Called through [`crate::simd::raster_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 pub fn raster_tile<R: Real>(
     t: usize,
     bins: &Bins,
@@ -88,9 +94,13 @@ pub fn raster_tile<R: Real>(
     medpos.fill(u32::MAX);
 
     let mut active = inside_masks(tx0, ty0, tx1, ty1);
-    let half = R::from_f64(MEDIAN_TRANSMITTANCE);
+    let half_t = R::from_f64(MEDIAN_TRANSMITTANCE);
     let min_t = R::from_f64(MIN_TRANSMITTANCE);
     let two = R::from_f64(2.0);
+
+    // Columns of the two row halves.
+    let xs: [V<R>; 2] =
+        std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))));
 
     for (pos, &j) in bins.tile(t).iter().enumerate() {
         let p = &projs[j as usize];
@@ -98,50 +108,73 @@ pub fn raster_tile<R: Real>(
         let (x1, y1) = (p.bbox[2].min(tx1) - tx0, p.bbox[3].min(ty1) - ty0);
         let span = span_mask(x0, x1);
         let pr = &probs[j as usize * k_obj..(j as usize + 1) * k_obj];
+        let pos_v = pos as u32;
         for ly in y0..=y1 {
-            let mut bits = active[ly as usize] & span;
+            let bits = active[ly as usize] & span;
             if bits == 0 {
                 continue;
             }
-            let row = Row::new(p, R::from_f64((ty0 + ly) as f64));
-            while bits != 0 {
-                let lx = bits.trailing_zeros() as i32;
-                bits &= bits - 1;
-                let idx = ((ly * TILE as i32 + lx) as usize) & (TILE_PIXELS - 1);
-                let Some(h) = intersect(p, &row, R::from_f64((tx0 + lx) as f64), cam.near) else { continue };
-                let t_before = tr[idx];
-                let t_after = t_before * (R::ONE - h.alpha);
-                if t_after < min_t {
-                    active[ly as usize] &= !(1u16 << lx);
+            let yr = R::from_f64((ty0 + ly) as f64);
+            let Some((c0, c1)) = row_columns(p, yr) else { continue };
+            let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
+            if c0 > c1 {
+                continue;
+            }
+            let bits = bits & span_mask(c0, c1);
+            if bits == 0 {
+                continue;
+            }
+            let row = Row::new(p, yr);
+            for (half, &xh) in xs.iter().enumerate() {
+                let hb = (bits >> (half * LANES)) as u8;
+                if hb == 0 {
                     continue;
                 }
-                let w = h.alpha * t_before;
+                let base = ly as usize * TILE as usize + half * LANES;
+                let px = base..base + LANES;
+                let h = intersect_lanes(p, &row, xh, cam.near, M::from_bits(hb));
+                if !h.valid.any() {
+                    continue;
+                }
+                let t_before = V::load(&tr[px.clone()]);
+                let t_after = t_before * rsub(R::ONE, h.alpha);
+                // Stop before the surfel that would take T below 1e-4 (it is not blended).
+                let stop = h.valid & t_after.lt(V::splat(min_t));
+                active[ly as usize] &= !(u16::from(stop.bits()) << (half * LANES));
+                let blend = h.valid & !stop;
+                let w = select(blend, h.alpha * t_before, V::splat(z));
                 for c in 0..3 {
-                    rgb[c][idx] += w * p.rgb[c];
-                    nrm[c][idx] += w * p.normal[c];
+                    (w * p.rgb[c]).add_to(&mut rgb[c][px.clone()]);
+                    (w * p.normal[c]).add_to(&mut nrm[c][px.clone()]);
                 }
                 if has_mask {
                     for c in 0..3 {
-                        msk[c][idx] += w * p.mask[c];
+                        (w * p.mask[c]).add_to(&mut msk[c][px.clone()]);
                     }
                 }
                 if has_obj {
                     for (plane, &pc) in obj.iter_mut().zip(pr) {
-                        plane[idx] += w * pc;
+                        (w * pc).add_to(&mut plane[px.clone()]);
                     }
                 }
-                dep[idx] += w * h.z;
-                if t_before > half {
-                    med[idx] = h.z;
-                    medpos[idx] = pos as u32;
+                (w * h.z).add_to(&mut dep[px.clone()]);
+                let at_median = blend & t_before.gt(V::splat(half_t));
+                select(at_median, h.z, V::load(&med[px.clone()])).store(&mut med[px.clone()]);
+                let (m, _) = ndc_depth_lanes(h.z);
+                let (m1v, m2v) = (V::load(&m1[px.clone()]), V::load(&m2[px.clone()]));
+                let a = rsub(R::ONE, t_before);
+                (w * (m * m * a + m2v - m * two * m1v)).add_to(&mut dist[px.clone()]);
+                (m1v + w * m).store(&mut m1[px.clone()]);
+                (m2v + w * m * m).store(&mut m2[px.clone()]);
+                select(blend, t_after, t_before).store(&mut tr[px.clone()]);
+                for l in 0..LANES {
+                    if at_median.0[l] {
+                        medpos[base + l] = pos_v;
+                    }
+                    if blend.0[l] {
+                        last[base + l] = pos_v + 1;
+                    }
                 }
-                let (m, _) = ndc_depth(h.z);
-                let a = R::ONE - t_before;
-                dist[idx] += w * (m * m * a + m2[idx] - two * m * m1[idx]);
-                m1[idx] += w * m;
-                m2[idx] += w * m * m;
-                tr[idx] = t_after;
-                last[idx] = pos as u32 + 1;
             }
         }
         if active.iter().all(|&m| m == 0) {

@@ -12,6 +12,9 @@
 //! 6. [`preprocess::preprocess_backward_one`]: chain rule to the raw parameters (quaternion
 //!    normalisation, SH view direction, exp/sigmoid/softmax activations).
 //!
+//! The tile kernels (3, 4) run on eight-pixel lanes ([`lanes`]) and are compiled twice, for AVX2 and
+//! for the baseline target, chosen at run time ([`simd`]); both give identical bits.
+//!
 //! Everything is generic over [`trand_core::Real`]: `f32` in production, `f64` in the finite-difference
 //! tests, from one source. Entry points: [`render`] and [`Rendered::backward`].
 
@@ -21,10 +24,12 @@ pub mod camera;
 pub mod constants;
 pub mod forward;
 pub mod intersect;
+pub mod lanes;
 pub mod layout;
 pub mod params;
 pub mod preprocess;
 mod render;
+pub mod simd;
 pub mod bench_scene;
 
 pub use params::{ParamsOf, SurfelParams};

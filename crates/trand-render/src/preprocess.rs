@@ -57,6 +57,44 @@ pub struct Proj<R> {
     pub clamped: u8,
     /// +1 or −1: the sign applied to `R_cw t_w` to face the camera.
     pub normal_sign: R,
+    /// Where on each pixel row `α ≥ 1/255` is possible (see [`RowCut`]).
+    pub cut: RowCut,
+}
+
+/// The region of the image where a surfel can reach `α = o·G ≥ 1/255`, i.e. `ρ ≤ c = 2 ln(255 o)`,
+/// in a form that gives each pixel row its columns cheaply ([`crate::intersect::row_columns`]).
+///
+/// * Object-space ellipse `u² + v² ≤ c`: with `h = T·(u, v, 1) = z·(x, y, 1)`, it is the image conic
+///   `(x, y, 1) Q (x, y, 1)ᵀ ≤ 0`, `Q ∝ T⁻ᵀ diag(1, 1, −c) T⁻¹`. Using `adj T` for `T⁻¹` (a positive
+///   factor `det²` apart), `Q_ij = c_i·c_j` weighted by `(1, 1, −c)`, with `c_0 = T_v × T_w`,
+///   `c_1 = T_w × T_u`, `c_2 = T_u × T_v` the columns of `adj T`. Stored as
+///   `(q00, q01, q02, q11, q12, q22)`; `None` when `q00 ≤ 0` (the conic is open on every row) or `T`
+///   is singular: no cut, the whole box is evaluated.
+/// * Filter disc `2|c − x|² ≤ c`: radius `√(c/2)` around the filter centre (rows within it keep
+///   the disc's bounding columns).
+#[derive(Clone, Copy, Debug)]
+pub struct RowCut {
+    pub conic: Option<[f64; 6]>,
+    pub center: [f64; 2],
+    pub filter_radius: f64,
+}
+
+impl RowCut {
+    fn new<R: Real>(t_u: [R; 3], t_v: [R; 3], t_w: [R; 3], center: [R; 2], c: f64) -> Self {
+        let f = |v: [R; 3]| v.map(R::to_f64);
+        let (tu, tv, tw) = (f(t_u), f(t_v), f(t_w));
+        let cr = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+        let cols = [cr(tv, tw), cr(tw, tu), cr(tu, tv)];
+        let det = tu[0] * cols[0][0] + tu[1] * cols[0][1] + tu[2] * cols[0][2];
+        let q = |i: usize, j: usize| cols[i][0] * cols[j][0] + cols[i][1] * cols[j][1] - c * cols[i][2] * cols[j][2];
+        let conic = [q(0, 0), q(0, 1), q(0, 2), q(1, 1), q(1, 2), q(2, 2)];
+        let usable = det != 0.0 && conic[0] > 0.0 && conic.iter().all(|v| v.is_finite());
+        Self {
+            conic: usable.then_some(conic),
+            center: [center[0].to_f64(), center[1].to_f64()],
+            filter_radius: (c.max(0.0) / FILTER_INV_SQUARE).sqrt(),
+        }
+    }
 }
 
 /// Upstream gradient of one surfel's preprocess outputs (reduced over all its pixels).
@@ -265,6 +303,7 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
         bbox,
         clamped: c1 | (c2 << 3),
         normal_sign,
+        cut: RowCut::new(g.t_u, g.t_v, g.t_w, center, r2),
     })
 }
 

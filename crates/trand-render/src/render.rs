@@ -3,11 +3,11 @@
 use rayon::prelude::*;
 use trand_core::{Camera, CameraError, Real};
 
-use crate::backward::{backward_tile, rec, reduce_surfel, GradMaps};
+use crate::backward::{rec, reduce_surfel, GradMaps};
 use crate::binning::{bin, Bins};
 use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
-use crate::forward::raster_tile;
+use crate::simd::{backward_tile, raster_tile};
 use crate::layout::{Layout, INT_CHANNELS};
 use crate::params::{ParamsOf, SurfelParams};
 use crate::preprocess::{preprocess_backward_one, preprocess_one, Proj, SurfelGradSlot};

@@ -1,0 +1,194 @@
+//! Eight-pixel lanes for the tile kernels.
+//!
+//! A tile row is 16 pixels; the kernels process it as two halves of [`LANES`] = 8 pixels with the same
+//! arithmetic in every lane, masks instead of branches. [`V`] is a plain `[R; 8]` whose operators are
+//! element-wise loops: with the kernels inlined into an AVX2 function (see [`crate::simd`]) LLVM turns
+//! each operator into one 256-bit instruction for `f32`, and into SSE2 pairs on the baseline target.
+//! No fused multiply-add is ever formed (Rust does not contract `a * b + c`), so every lane computes
+//! bit for bit what the scalar expression would: the vector width changes speed, never results.
+//!
+//! Lanes outside the mask are *sanitised* (finite placeholder values, zero weight) rather than skipped,
+//! so that `0 · x` never meets an infinity or NaN.
+
+use core::ops::{Add, AddAssign, BitAnd, Div, Mul, Not, Sub, SubAssign};
+
+use trand_core::Real;
+
+/// Pixels per lane group: half a tile row.
+pub const LANES: usize = 8;
+
+/// Eight values of `R`.
+#[derive(Clone, Copy, Debug)]
+pub struct V<R>(pub [R; LANES]);
+
+/// Eight booleans (a lane mask).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct M(pub [bool; LANES]);
+
+/// `[f(0), …, f(7)]` by a plain loop (the standard `from_fn`/`map` are not always inlined into the AVX2
+/// kernels, and a call per lane would cost more than the arithmetic).
+macro_rules! lanes {
+    ($init:expr, |$l:ident| $e:expr) => {{
+        let mut out = [$init; LANES];
+        for $l in 0..LANES {
+            out[$l] = $e;
+        }
+        out
+    }};
+}
+
+impl<R: Real> V<R> {
+    #[inline(always)]
+    pub fn splat(r: R) -> Self {
+        Self([r; LANES])
+    }
+    #[inline(always)]
+    pub fn load(s: &[R]) -> Self {
+        Self(lanes!(R::ZERO, |l| s[l]))
+    }
+    #[inline(always)]
+    pub fn store(self, s: &mut [R]) {
+        s[..LANES].copy_from_slice(&self.0);
+    }
+    /// `s[l] += self[l]`.
+    #[inline(always)]
+    pub fn add_to(self, s: &mut [R]) {
+        for (d, v) in s[..LANES].iter_mut().zip(self.0) {
+            *d += v;
+        }
+    }
+    #[inline(always)]
+    pub fn map(self, f: impl Fn(R) -> R) -> Self {
+        Self(lanes!(R::ZERO, |l| f(self.0[l])))
+    }
+    #[inline(always)]
+    pub fn lt(self, o: Self) -> M {
+        M(lanes!(false, |l| self.0[l] < o.0[l]))
+    }
+    #[inline(always)]
+    pub fn le(self, o: Self) -> M {
+        M(lanes!(false, |l| self.0[l] <= o.0[l]))
+    }
+    #[inline(always)]
+    pub fn gt(self, o: Self) -> M {
+        M(lanes!(false, |l| self.0[l] > o.0[l]))
+    }
+    #[inline(always)]
+    pub fn ne(self, o: Self) -> M {
+        M(lanes!(false, |l| self.0[l] != o.0[l]))
+    }
+    /// Lane sum in lane order (a fixed order: deterministic).
+    #[inline(always)]
+    pub fn sum(self) -> R {
+        let mut a = R::ZERO;
+        for l in 0..LANES {
+            a += self.0[l];
+        }
+        a
+    }
+}
+
+/// `m ? a : b` per lane.
+#[inline(always)]
+pub fn select<R: Copy>(m: M, a: V<R>, b: V<R>) -> V<R> {
+    V(lanes!(b.0[0], |l| if m.0[l] { a.0[l] } else { b.0[l] }))
+}
+
+impl M {
+    /// Lane `l` set where bit `l` of `bits` is.
+    #[inline(always)]
+    pub fn from_bits(bits: u8) -> Self {
+        Self(lanes!(false, |l| bits >> l & 1 != 0))
+    }
+    #[inline(always)]
+    pub fn bits(self) -> u8 {
+        let mut b = 0u8;
+        for l in 0..LANES {
+            b |= u8::from(self.0[l]) << l;
+        }
+        b
+    }
+    #[inline(always)]
+    pub fn any(self) -> bool {
+        self.bits() != 0
+    }
+}
+
+impl BitAnd for M {
+    type Output = M;
+    #[inline(always)]
+    fn bitand(self, o: M) -> M {
+        M(lanes!(false, |l| self.0[l] & o.0[l]))
+    }
+}
+
+impl Not for M {
+    type Output = M;
+    #[inline(always)]
+    fn not(self) -> M {
+        M(lanes!(false, |l| !self.0[l]))
+    }
+}
+
+macro_rules! lane_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl<R: Real> $tr for V<R> {
+            type Output = V<R>;
+            #[inline(always)]
+            fn $f(self, o: V<R>) -> V<R> {
+                V(lanes!(R::ZERO, |l| self.0[l] $op o.0[l]))
+            }
+        }
+        impl<R: Real> $tr<R> for V<R> {
+            type Output = V<R>;
+            #[inline(always)]
+            fn $f(self, o: R) -> V<R> {
+                V(lanes!(R::ZERO, |l| self.0[l] $op o))
+            }
+        }
+    };
+}
+lane_op!(Add, add, +);
+lane_op!(Sub, sub, -);
+lane_op!(Mul, mul, *);
+lane_op!(Div, div, /);
+
+impl<R: Real> AddAssign for V<R> {
+    #[inline(always)]
+    fn add_assign(&mut self, o: V<R>) {
+        *self = *self + o;
+    }
+}
+
+impl<R: Real> SubAssign for V<R> {
+    #[inline(always)]
+    fn sub_assign(&mut self, o: V<R>) {
+        *self = *self - o;
+    }
+}
+
+/// `r − v` per lane.
+#[inline(always)]
+pub fn rsub<R: Real>(r: R, v: V<R>) -> V<R> {
+    V(lanes!(R::ZERO, |l| r - v.0[l]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mask_bits_round_trip_every_pattern() {
+        for b in 0..=255u8 {
+            assert_eq!(M::from_bits(b).bits(), b);
+        }
+    }
+
+    #[test]
+    fn select_takes_a_where_set_and_b_elsewhere() {
+        let a = V([1.0f32; LANES]);
+        let b = V([2.0f32; LANES]);
+        let r = select(M::from_bits(0b1010_0101), a, b);
+        assert_eq!(r.0, [1.0, 2.0, 1.0, 2.0, 2.0, 1.0, 2.0, 1.0]);
+    }
+}

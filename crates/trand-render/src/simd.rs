@@ -1,0 +1,81 @@
+//! Runtime CPU dispatch of the tile kernels.
+//!
+//! The forward and backward kernels ([`crate::forward::raster_tile`], [`crate::backward::backward_tile`])
+//! are written on eight-pixel lanes ([`crate::lanes`]) and marked `#[inline(always)]`. Here each is
+//! instantiated twice: inside an `avx2` function, where LLVM maps a lane group of `f32` onto one 256-bit
+//! register, and for the baseline target (SSE2 pairs). The choice is made per call from the CPU's
+//! features (`is_x86_feature_detected!` caches its answer). Both builds run the same IEEE operations
+//! without fused multiply-adds, so they return identical bits: the choice affects speed only.
+//!
+//! This is the one place in the crate with `unsafe`: calling a `#[target_feature]` function is unsafe
+//! because it would fault on a CPU without the feature, and the check just before each call rules
+//! that out.
+#![allow(unsafe_code)]
+
+use std::sync::atomic::{AtomicU8, Ordering};
+
+use trand_core::Real;
+
+use crate::backward::GradMaps;
+use crate::binning::Bins;
+use crate::camera::CamR;
+use crate::layout::Layout;
+use crate::preprocess::Proj;
+
+/// Which build of the kernels to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dispatch {
+    /// The widest the CPU supports (the default).
+    Auto = 0,
+    /// The baseline build only (for tests and benchmarks that compare the two).
+    Baseline = 1,
+}
+
+static DISPATCH: AtomicU8 = AtomicU8::new(Dispatch::Auto as u8);
+
+/// Selects the kernel build for every later render in the process.
+pub fn set_dispatch(d: Dispatch) {
+    DISPATCH.store(d as u8, Ordering::Relaxed);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn use_avx2() -> bool {
+    DISPATCH.load(Ordering::Relaxed) == Dispatch::Auto as u8 && std::arch::is_x86_feature_detected!("avx2")
+}
+
+macro_rules! dispatch {
+    ($(#[$doc:meta])* $name:ident, $avx:ident, $imp:path, ($($arg:ident: $ty:ty),* $(,)?)) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        pub fn $name<R: Real>($($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            if use_avx2() {
+                // SAFETY: the CPU supports AVX2, checked by `use_avx2` on the line above.
+                return unsafe { $avx($($arg),*) };
+            }
+            $imp($($arg),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        #[allow(clippy::too_many_arguments)]
+        fn $avx<R: Real>($($arg: $ty),*) {
+            $imp($($arg),*)
+        }
+    };
+}
+
+dispatch!(
+    /// Stage 3 for tile `t`: see [`crate::forward::raster_tile`].
+    raster_tile, raster_tile_avx2, crate::forward::raster_tile,
+    (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
+     buf: &mut [R], ibuf: &mut [u32])
+);
+
+dispatch!(
+    /// Stage 4 for tile `t`: see [`crate::backward::backward_tile`].
+    backward_tile, backward_tile_avx2, crate::backward::backward_tile,
+    (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
+     buf: &[R], ibuf: &[u32], grads: &GradMaps<'_, R>, pairs: &mut [R])
+);

@@ -1,0 +1,139 @@
+//! Properties of the lane kernels: the eight-lane intersection equals the scalar one bit for bit, the
+//! per-row column cut never drops a pixel the alpha gate would pass, and the AVX2 and baseline builds
+//! of the kernels return identical bits.
+
+mod common;
+
+use rand::{RngExt, SeedableRng};
+use trand_core::{math::logit, sh::rgb_to_dc, surfels::Surfel, Real, Surfels};
+use trand_render::camera::CamR;
+use trand_render::intersect::{intersect, intersect_lanes, row_columns, Row};
+use trand_render::lanes::{M, V};
+use trand_render::preprocess::{preprocess_one, Proj};
+use trand_render::simd::{set_dispatch, Dispatch};
+use trand_render::{render, Maps, OutputGrads, RenderSettings};
+
+/// Surfels of every shape the optimiser produces: tiny to large, round to needle-thin, any tilt
+/// (including nearly edge-on), opacity 0.005 to 0.999.
+fn varied_scene(n: usize, seed: u64) -> Surfels {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let mut s = Surfels::new(0, 3).unwrap();
+    for _ in 0..n {
+        let big = rng.random_range(0.002f32..0.15);
+        let thin = big * rng.random_range(0.02f32..1.0);
+        let q = [0, 1, 2, 3].map(|_| rng.random_range(-1.0f32..1.0));
+        s.push(&Surfel {
+            mean: [0, 1, 2].map(|_| rng.random_range(-0.3f32..0.3)),
+            log_scale: [big.ln(), thin.ln()],
+            quat: q,
+            opacity_logit: logit(rng.random_range(0.005f32..0.999)),
+            sh_dc: [rgb_to_dc(0.5); 3],
+            mask_dc: [rgb_to_dc(0.5); 3],
+            obj_logits: vec![0.0; 3],
+        });
+    }
+    s
+}
+
+fn projections(s: &Surfels, cam: &CamR<f32>) -> Vec<Proj<f32>> {
+    (0..s.len()).filter_map(|i| preprocess_one::<f32, _>(s, i, cam, 0, &mut [0.0; 3])).collect()
+}
+
+#[test]
+fn lane_intersection_equals_scalar_intersection_bit_for_bit() {
+    let camera = common::test_camera(96, 72, 0.8);
+    let cam = CamR::<f32>::new(&camera, 0.2);
+    let projs = projections(&varied_scene(400, 3), &cam);
+    let mut compared = 0;
+    for p in &projs {
+        for y in (p.bbox[1]..=p.bbox[3]).step_by(3) {
+            let row = Row::new(p, y as f32);
+            for x0 in (p.bbox[0]..=p.bbox[2]).step_by(8) {
+                let xs = V(std::array::from_fn(|l| (x0 + l as i32) as f32));
+                let h = intersect_lanes(p, &row, xs, cam.near, M::from_bits(0xff));
+                for l in 0..8 {
+                    match intersect(p, &row, xs.0[l], cam.near) {
+                        Some(s) => {
+                            assert!(h.valid.0[l]);
+                            for (a, b) in [(h.u, s.u), (h.v, s.v), (h.z, s.z), (h.g, s.g), (h.alpha, s.alpha)] {
+                                assert_eq!(a.0[l].to_bits(), b.to_bits());
+                            }
+                            assert_eq!(h.object_space.0[l], s.object_space);
+                            assert_eq!(h.clamped.0[l], s.clamped);
+                            compared += 1;
+                        }
+                        None => {
+                            assert!(!h.valid.0[l]);
+                            assert_eq!(h.alpha.0[l], 0.0, "a missed lane carries zero alpha");
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(compared > 1000, "only {compared} hits compared");
+}
+
+#[test]
+fn row_cut_keeps_every_pixel_the_alpha_gate_passes() {
+    for (seed, (w, h)) in [(1u64, (128u32, 96u32)), (2, (64, 48)), (9, (200, 150))] {
+        let camera = common::test_camera(w, h, 0.7);
+        let cam = CamR::<f32>::new(&camera, 0.2);
+        let projs = projections(&varied_scene(600, seed), &cam);
+        let (mut hits, mut boxed, mut cut_away) = (0usize, 0usize, 0usize);
+        for p in &projs {
+            for y in p.bbox[1]..=p.bbox[3] {
+                let yr = f32::from_f64(y as f64);
+                let cols = row_columns(p, yr);
+                let row = Row::new(p, yr);
+                for x in p.bbox[0]..=p.bbox[2] {
+                    boxed += 1;
+                    let inside = cols.is_some_and(|(lo, hi)| lo <= x && x <= hi);
+                    cut_away += usize::from(!inside);
+                    if intersect(p, &row, x as f32, cam.near).is_some() {
+                        hits += 1;
+                        assert!(inside, "pixel ({x}, {y}) passes the alpha gate but the cut {cols:?} drops it");
+                    }
+                }
+            }
+        }
+        assert!(hits > 1000, "seed {seed}: only {hits} hits");
+        // The cut must also do its job: a good share of the boxes' pixels is skipped.
+        assert!(cut_away * 5 > boxed, "seed {seed}: cut removed {cut_away} of {boxed}");
+    }
+}
+
+#[test]
+fn avx2_and_baseline_kernels_return_identical_bits() {
+    let camera = common::test_camera(160, 120, 0.9);
+    let s = varied_scene(1500, 5);
+    let settings = RenderSettings { maps: Maps::All, background: [0.1, 0.2, 0.3], ..Default::default() };
+    let run = |d: Dispatch| {
+        set_dispatch(d);
+        let out = render::<f32, _>(&s, &camera, &settings).unwrap();
+        let n = out.alpha.len();
+        let g = OutputGrads {
+            rgb: Some((0..3 * n).map(|i| (i % 7) as f32 * 0.1 - 0.3).collect()),
+            mask: Some(vec![0.2; 3 * n]),
+            objects: Some((0..3 * n).map(|i| (i % 5) as f32 * 0.1 - 0.2).collect()),
+            depth: Some(vec![0.3; n]),
+            median: Some(vec![-0.4; n]),
+            distortion: Some(vec![0.5; n]),
+            ..Default::default()
+        };
+        let grads = out.backward(&s, &g);
+        set_dispatch(Dispatch::Auto);
+        let mut v: Vec<u32> = [&out.rgb, &out.mask, &out.objects, &out.depth, &out.median, &out.distortion]
+            .iter()
+            .flat_map(|m| m.iter().map(|x| x.to_bits()))
+            .collect();
+        let p = &grads.params;
+        for m in [p.means.as_flattened(), p.quats.as_flattened(), &p.opacity_logits, &p.sh, &p.obj_logits] {
+            v.extend(m.iter().map(|x| x.to_bits()));
+        }
+        v
+    };
+    let (auto, base) = (run(Dispatch::Auto), run(Dispatch::Baseline));
+    assert_eq!(auto.len(), base.len());
+    assert!(auto == base, "the AVX2 and baseline kernels differ");
+}
