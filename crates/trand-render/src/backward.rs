@@ -213,7 +213,8 @@ pub fn backward_tile<R: Real>(
                 let a = h.alpha;
                 let one_m = rsub(R::ONE, a);
                 let tr_v = V::load(&tr[px.clone()]);
-                let t_i = tr_v / one_m;
+                let inv_one_m = V::splat(R::ONE) / one_m;
+                let t_i = tr_v * inv_one_m;
                 let w = a * t_i;
 
                 // v_i = Σ_q q_i·g_q + z_i g_D + g_A (+ g_w): blended quantities and their ∂/∂q_i.
@@ -258,7 +259,7 @@ pub fn backward_tile<R: Real>(
                 let s_v = V::load(&suffix[px.clone()]);
                 let bracket = v - s_v;
                 select(h.valid, a * v + one_m * s_v, s_v).store(&mut suffix[px.clone()]);
-                let d_alpha = select(h.valid, t_i * bracket - V::load(&g_bg[px.clone()]) / one_m, zv);
+                let d_alpha = select(h.valid, t_i * bracket - V::load(&g_bg[px.clone()]) * inv_one_m, zv);
                 select(h.valid, t_i, tr_v).store(&mut tr[px.clone()]);
 
                 // α = min(0.99, o·G), G = exp(−ρ/2).
