@@ -52,11 +52,12 @@ pub const CHUNK: usize = 2048;
 /// a chunk's grid stays small).
 const SORT_BLOCK_SHIFT: i32 = 2;
 
-/// Polar rotation: stop when the incremental rotation angle is below this (radians). An error of
-/// 1e-6 in `R` changes τ by about `2μ·1e-6 ≈ 0.04 Pa`, below the `f32` rounding of `F` itself, and
-/// the warm start means the error does not accumulate. 1e-9 took 4.6 iterations per particle and
-/// substep on the fixture, 1e-6 takes 1.8 (the polar step was ~40 % of the substep).
-const POLAR_TOLERANCE: f64 = 1e-6;
+/// Polar rotation: stop when the incremental rotation angle is below this (radians). An error `δ` in
+/// `R` changes τ by about `2μ·δ ≈ 3.6 Pa` at 1e-4, against the ~15 kPa a 10 cm glass of the paper's
+/// density puts on its base (2e-4 relative), and the warm start means the error does not accumulate
+/// (the fixture bodies still land within 5e-4 m of the Taichi engine's). Iterations per particle and
+/// substep on the fixture: 4.6 at 1e-9, 1.8 at 1e-6; 1e-4 takes a further 20 % off the substep.
+const POLAR_TOLERANCE: f64 = 1e-4;
 /// Polar rotation: iteration cap (only reached for degenerate `F`, e.g. a collapsed particle).
 const POLAR_MAX_ITERATIONS: usize = 40;
 
@@ -637,7 +638,7 @@ mod tests {
             }
             let r = DMat3::from_quat(polar_rotation(f, DQuat::IDENTITY));
             let e = (r - newton_polar(f)).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(e < 1e-5, "error {e}");
+            assert!(e < 2.0 * POLAR_TOLERANCE, "error {e}");
         }
     }
 
