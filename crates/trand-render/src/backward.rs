@@ -32,6 +32,7 @@ use crate::forward::{span_mask, tile_pixels, Plane};
 use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
 use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
+use crate::simd::{prefetch, PREFETCH_AHEAD};
 use crate::preprocess::{Proj, ProjGrad};
 
 /// Offsets inside a pair gradient record.
@@ -170,6 +171,9 @@ pub fn backward_tile<R: Real>(
             active[i / TILE as usize] |= 1 << (i % TILE as usize);
             next += 1;
         }
+        if pos >= PREFETCH_AHEAD {
+            prefetch(&projs[list[pos - PREFETCH_AHEAD] as usize]);
+        }
         let j = list[pos] as usize;
         let p = &projs[j];
         let pr = &probs[j * k_obj..(j + 1) * k_obj];
@@ -243,11 +247,8 @@ pub fn backward_tile<R: Real>(
                     }
                 }
                 let mut dz = w * g_dv;
-                let mut at_median = [false; LANES];
-                for (l, m) in at_median.iter_mut().enumerate() {
-                    *m = medpos[base + l] == pos_v;
-                }
-                dz += select(M(at_median) & h.valid, V::load(&g_med[px.clone()]), zv);
+                let at_median = M::from_fn(|l| medpos[base + l] == pos_v);
+                dz += select(at_median & h.valid, V::load(&g_med[px.clone()]), zv);
                 if has_dist {
                     let (m, dm) = ndc_depth_lanes(h.z);
                     let a_f = rsub(R::ONE, V::load(&t_final[px.clone()]));

@@ -30,6 +30,7 @@ use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXEL
 use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
 use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
+use crate::simd::{prefetch, PREFETCH_AHEAD};
 use crate::preprocess::Proj;
 
 /// One channel plane of a tile.
@@ -102,7 +103,11 @@ pub fn raster_tile<R: Real>(
     let xs: [V<R>; 2] =
         std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))));
 
-    for (pos, &j) in bins.tile(t).iter().enumerate() {
+    let list = bins.tile(t);
+    for (pos, &j) in list.iter().enumerate() {
+        if let Some(&ahead) = list.get(pos + PREFETCH_AHEAD) {
+            prefetch(&projs[ahead as usize]);
+        }
         let p = &projs[j as usize];
         let (x0, y0) = (p.bbox[0].max(tx0) - tx0, p.bbox[1].max(ty0) - ty0);
         let (x1, y1) = (p.bbox[2].min(tx1) - tx0, p.bbox[3].min(ty1) - ty0);
@@ -168,10 +173,10 @@ pub fn raster_tile<R: Real>(
                 (m2v + w * m * m).store(&mut m2[px.clone()]);
                 select(blend, t_after, t_before).store(&mut tr[px.clone()]);
                 for l in 0..LANES {
-                    if at_median.0[l] {
+                    if at_median.lane(l) {
                         medpos[base + l] = pos_v;
                     }
-                    if blend.0[l] {
+                    if blend.lane(l) {
                         last[base + l] = pos_v + 1;
                     }
                 }

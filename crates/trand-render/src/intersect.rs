@@ -125,15 +125,15 @@ pub struct Hits<R> {
     pub pz: V<R>,
     pub g: V<R>,
     pub alpha: V<R>,
-    pub valid: M,
-    pub object_space: M,
-    pub clamped: M,
+    pub valid: M<R>,
+    pub object_space: M<R>,
+    pub clamped: M<R>,
 }
 
 /// [`intersect`] for the eight pixels at columns `xs` of `row`, restricted to `lanes`: the same
 /// operations in the same order, so each lane equals the scalar result bit for bit.
 #[inline(always)]
-pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, lanes: M) -> Hits<R> {
+pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, lanes: M<R>) -> Hits<R> {
     let tw = &p.t_w;
     let px = xs * row.a[0] - row.b[0];
     let py = xs * row.a[1] - row.b[1];

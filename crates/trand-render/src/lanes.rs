@@ -21,9 +21,11 @@ pub const LANES: usize = 8;
 #[derive(Clone, Copy, Debug)]
 pub struct V<R>(pub [R; LANES]);
 
-/// Eight booleans (a lane mask).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct M(pub [bool; LANES]);
+/// A lane mask, stored as `1` (set) or `0` (clear) in the lanes' own float type. Masks of the same
+/// width as the data let LLVM keep comparisons, `&`, `!` and [`select`] in vector registers (compare,
+/// multiply, blend); a `[bool; 8]` mask made it extract every lane and branch on it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct M<R>(pub [R; LANES]);
 
 /// `[f(0), …, f(7)]` by a plain loop (the standard `from_fn`/`map` are not always inlined into the AVX2
 /// kernels, and a call per lane would cost more than the arithmetic).
@@ -62,20 +64,20 @@ impl<R: Real> V<R> {
         Self(lanes!(R::ZERO, |l| f(self.0[l])))
     }
     #[inline(always)]
-    pub fn lt(self, o: Self) -> M {
-        M(lanes!(false, |l| self.0[l] < o.0[l]))
+    pub fn lt(self, o: Self) -> M<R> {
+        M(lanes!(R::ZERO, |l| if self.0[l] < o.0[l] { R::ONE } else { R::ZERO }))
     }
     #[inline(always)]
-    pub fn le(self, o: Self) -> M {
-        M(lanes!(false, |l| self.0[l] <= o.0[l]))
+    pub fn le(self, o: Self) -> M<R> {
+        M(lanes!(R::ZERO, |l| if self.0[l] <= o.0[l] { R::ONE } else { R::ZERO }))
     }
     #[inline(always)]
-    pub fn gt(self, o: Self) -> M {
-        M(lanes!(false, |l| self.0[l] > o.0[l]))
+    pub fn gt(self, o: Self) -> M<R> {
+        M(lanes!(R::ZERO, |l| if self.0[l] > o.0[l] { R::ONE } else { R::ZERO }))
     }
     #[inline(always)]
-    pub fn ne(self, o: Self) -> M {
-        M(lanes!(false, |l| self.0[l] != o.0[l]))
+    pub fn ne(self, o: Self) -> M<R> {
+        M(lanes!(R::ZERO, |l| if self.0[l] != o.0[l] { R::ONE } else { R::ZERO }))
     }
     /// Lane sum in lane order (a fixed order: deterministic).
     #[inline(always)]
@@ -90,21 +92,31 @@ impl<R: Real> V<R> {
 
 /// `m ? a : b` per lane.
 #[inline(always)]
-pub fn select<R: Copy>(m: M, a: V<R>, b: V<R>) -> V<R> {
-    V(lanes!(b.0[0], |l| if m.0[l] { a.0[l] } else { b.0[l] }))
+pub fn select<R: Real>(m: M<R>, a: V<R>, b: V<R>) -> V<R> {
+    V(lanes!(R::ZERO, |l| if m.0[l] != R::ZERO { a.0[l] } else { b.0[l] }))
 }
 
-impl M {
+impl<R: Real> M<R> {
     /// Lane `l` set where bit `l` of `bits` is.
     #[inline(always)]
     pub fn from_bits(bits: u8) -> Self {
-        Self(lanes!(false, |l| bits >> l & 1 != 0))
+        Self(lanes!(R::ZERO, |l| if bits >> l & 1 != 0 { R::ONE } else { R::ZERO }))
+    }
+    /// Lane `l` set where `f(l)`.
+    #[inline(always)]
+    pub fn from_fn(f: impl Fn(usize) -> bool) -> Self {
+        Self(lanes!(R::ZERO, |l| if f(l) { R::ONE } else { R::ZERO }))
+    }
+    /// Whether lane `l` is set.
+    #[inline(always)]
+    pub fn lane(self, l: usize) -> bool {
+        self.0[l] != R::ZERO
     }
     #[inline(always)]
     pub fn bits(self) -> u8 {
         let mut b = 0u8;
         for l in 0..LANES {
-            b |= u8::from(self.0[l]) << l;
+            b |= u8::from(self.0[l] != R::ZERO) << l;
         }
         b
     }
@@ -114,19 +126,20 @@ impl M {
     }
 }
 
-impl BitAnd for M {
-    type Output = M;
+impl<R: Real> BitAnd for M<R> {
+    type Output = M<R>;
+    /// `a & b` as the product of 0/1 lanes.
     #[inline(always)]
-    fn bitand(self, o: M) -> M {
-        M(lanes!(false, |l| self.0[l] & o.0[l]))
+    fn bitand(self, o: M<R>) -> M<R> {
+        M(lanes!(R::ZERO, |l| self.0[l] * o.0[l]))
     }
 }
 
-impl Not for M {
-    type Output = M;
+impl<R: Real> Not for M<R> {
+    type Output = M<R>;
     #[inline(always)]
-    fn not(self) -> M {
-        M(lanes!(false, |l| !self.0[l]))
+    fn not(self) -> M<R> {
+        M(lanes!(R::ZERO, |l| R::ONE - self.0[l]))
     }
 }
 
@@ -180,7 +193,9 @@ mod tests {
     #[test]
     fn mask_bits_round_trip_every_pattern() {
         for b in 0..=255u8 {
-            assert_eq!(M::from_bits(b).bits(), b);
+            assert_eq!(M::<f32>::from_bits(b).bits(), b);
+            assert_eq!((!M::<f64>::from_bits(b)).bits(), !b);
+            assert_eq!((M::<f32>::from_bits(b) & M::from_bits(0b0110_1100)).bits(), b & 0b0110_1100);
         }
     }
 

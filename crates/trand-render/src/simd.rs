@@ -22,6 +22,28 @@ use crate::camera::CamR;
 use crate::layout::Layout;
 use crate::preprocess::Proj;
 
+/// Asks the CPU to start loading the cache lines of `*r` (up to 256 bytes): the kernels call it for
+/// the surfel a few places ahead in a tile's list, whose data sits at a random address. A hint only:
+/// no effect on results, and a no-op off x86-64.
+#[inline(always)]
+pub fn prefetch<T>(r: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = (r as *const T).cast::<i8>();
+        let lines = std::mem::size_of::<T>().div_ceil(64).min(4);
+        for l in 0..lines {
+            // SAFETY: prefetching never faults, and `p + 64·l` stays within (or one line past) `*r`.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64 * l)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = r;
+}
+
+/// How many list entries ahead the kernels prefetch.
+pub const PREFETCH_AHEAD: usize = 4;
+
 /// Which build of the kernels to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Dispatch {

@@ -54,16 +54,16 @@ fn lane_intersection_equals_scalar_intersection_bit_for_bit() {
                 for l in 0..8 {
                     match intersect(p, &row, xs.0[l], cam.near) {
                         Some(s) => {
-                            assert!(h.valid.0[l]);
+                            assert!(h.valid.lane(l));
                             for (a, b) in [(h.u, s.u), (h.v, s.v), (h.z, s.z), (h.g, s.g), (h.alpha, s.alpha)] {
                                 assert_eq!(a.0[l].to_bits(), b.to_bits());
                             }
-                            assert_eq!(h.object_space.0[l], s.object_space);
-                            assert_eq!(h.clamped.0[l], s.clamped);
+                            assert_eq!(h.object_space.lane(l), s.object_space);
+                            assert_eq!(h.clamped.lane(l), s.clamped);
                             compared += 1;
                         }
                         None => {
-                            assert!(!h.valid.0[l]);
+                            assert!(!h.valid.lane(l));
                             assert_eq!(h.alpha.0[l], 0.0, "a missed lane carries zero alpha");
                         }
                     }
