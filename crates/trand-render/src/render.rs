@@ -356,10 +356,12 @@ pub fn render<R: Real, P: SurfelParams<R>>(
                 let x0 = tx * TILE as usize;
                 let nx = (w - x0).min(TILE as usize);
                 let b = &blocks[(ty * tiles_x + tx) * block..];
-                for c in 0..nch {
-                    let src = &b[(ch0 + c) * TILE_PIXELS + ly * TILE as usize..][..nx];
-                    for (dst, &v) in row[x0 * nch + c..].iter_mut().step_by(nch).zip(src) {
-                        *dst = v;
+                // Channel-planar tile row → pixel-interleaved image row (plain indexing: a
+                // `step_by` iterator here cost a fifth of the forward pass).
+                let src = &b[ch0 * TILE_PIXELS + ly * TILE as usize..];
+                for (lx, px) in row[x0 * nch..(x0 + nx) * nch].chunks_exact_mut(nch).enumerate() {
+                    for (c, d) in px.iter_mut().enumerate() {
+                        *d = src[c * TILE_PIXELS + lx];
                     }
                 }
             }
