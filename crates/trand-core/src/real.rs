@@ -60,6 +60,7 @@ pub trait Real:
 /// reliably; the fused scalar form is not vectorized once inlined into a larger kernel). Bit-identical
 /// to [`fast_exp_f32`] lane by lane.
 #[inline(always)]
+#[allow(clippy::manual_clamp)] // max/min are vector instructions; `clamp` asserts and is not vectorized the same way
 pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
     const MAGIC: f32 = 12_582_912.0;
     // Clamp with min/max (vector instructions), not nested ifs (which stayed branches).

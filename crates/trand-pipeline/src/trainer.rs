@@ -14,7 +14,7 @@
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
 use trand_core::Surfels;
-use trand_render::{render, Maps, OutputGrads, RenderSettings};
+use trand_render::{render, GeometryMaps, Maps, OutputGrads, RenderSettings};
 use trand_train::config::TrainConfig;
 use trand_train::losses::{dice::dice, geometry, object::object_aware_loss, photometric::photometric};
 use trand_train::{densify_and_prune, reset_opacity, Adam, DensifyStats};
@@ -90,6 +90,7 @@ impl<'a> Trainer<'a> {
             near: cfg.near as f64,
             sh_degree: Some(cfg.sh_degree),
             maps: if object_aware { Maps::All } else { Maps::Rgb },
+            geometry: if geometry_on { GeometryMaps::Rendered } else { GeometryMaps::Skipped },
         };
         let out = render::<f32, _>(&self.surfels, &view.camera, &settings)?;
         let (w, h) = (view.width, view.height);

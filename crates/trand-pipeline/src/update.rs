@@ -25,7 +25,7 @@ use trand_io::View;
 use trand_physics::{
     below_view, build_particles, ring_views, InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume,
 };
-use trand_render::{render, Maps, RenderSettings};
+use trand_render::{render, GeometryMaps, Maps, RenderSettings};
 use trand_train::config::TrainConfig;
 
 use crate::targets::{self, Supervision};
@@ -401,6 +401,7 @@ pub fn update(
         near: opts.train.near as f64,
         sh_degree: Some(opts.train.sh_degree),
         maps: Maps::Rgb,
+        geometry: GeometryMaps::Rendered,
     };
     let t0 = Instant::now();
     let object_aware = supervision == Supervision::ObjectAware;

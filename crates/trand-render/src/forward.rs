@@ -32,6 +32,7 @@ use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
 use crate::simd::{prefetch, PREFETCH_AHEAD};
 use crate::preprocess::Proj;
+use crate::GeometryMaps;
 
 /// One channel plane of a tile.
 pub type Plane<R> = [R; TILE_PIXELS];
@@ -62,7 +63,7 @@ pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usi
 
 /// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`.
 /// Called through [`crate::simd::raster_tile`], which compiles it for the CPU's widest lanes.
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // c indexes planes and colour alike
 #[inline(always)]
 pub fn raster_tile<R: Real>(
     t: usize,
@@ -72,9 +73,11 @@ pub fn raster_tile<R: Real>(
     lay: &Layout,
     cam: &CamR<R>,
     background: [R; 3],
+    geometry: GeometryMaps,
     buf: &mut [R],
     ibuf: &mut [u32],
 ) {
+    let geometry = geometry == GeometryMaps::Rendered;
     let (tx0, ty0, tx1, ty1) = tile_pixels(t, bins.tiles_x, cam.width, cam.height);
     let k_obj = lay.num_objects;
     let (has_mask, has_obj) = (lay.has_mask, lay.has_objects);
@@ -150,7 +153,6 @@ pub fn raster_tile<R: Real>(
                 let w = select(blend, h.alpha * t_before, V::splat(z));
                 for c in 0..3 {
                     (w * p.rgb[c]).add_to(&mut rgb[c][px.clone()]);
-                    (w * p.normal[c]).add_to(&mut nrm[c][px.clone()]);
                 }
                 if has_mask {
                     for c in 0..3 {
@@ -162,20 +164,27 @@ pub fn raster_tile<R: Real>(
                         (w * pc).add_to(&mut plane[px.clone()]);
                     }
                 }
-                (w * h.z).add_to(&mut dep[px.clone()]);
-                let at_median = blend & t_before.gt(V::splat(half_t));
-                select(at_median, h.z, V::load(&med[px.clone()])).store(&mut med[px.clone()]);
-                let (m, _) = ndc_depth_lanes(h.z);
-                let (m1v, m2v) = (V::load(&m1[px.clone()]), V::load(&m2[px.clone()]));
-                let a = rsub(R::ONE, t_before);
-                (w * (m * m * a + m2v - m * two * m1v)).add_to(&mut dist[px.clone()]);
-                (m1v + w * m).store(&mut m1[px.clone()]);
-                (m2v + w * m * m).store(&mut m2[px.clone()]);
+                if geometry {
+                    for c in 0..3 {
+                        (w * p.normal[c]).add_to(&mut nrm[c][px.clone()]);
+                    }
+                    (w * h.z).add_to(&mut dep[px.clone()]);
+                    let at_median = blend & t_before.gt(V::splat(half_t));
+                    select(at_median, h.z, V::load(&med[px.clone()])).store(&mut med[px.clone()]);
+                    let (m, _) = ndc_depth_lanes(h.z);
+                    let (m1v, m2v) = (V::load(&m1[px.clone()]), V::load(&m2[px.clone()]));
+                    let a = rsub(R::ONE, t_before);
+                    (w * (m * m * a + m2v - m * two * m1v)).add_to(&mut dist[px.clone()]);
+                    (m1v + w * m).store(&mut m1[px.clone()]);
+                    (m2v + w * m * m).store(&mut m2[px.clone()]);
+                    for l in 0..LANES {
+                        if at_median.lane(l) {
+                            medpos[base + l] = pos_v;
+                        }
+                    }
+                }
                 select(blend, t_after, t_before).store(&mut tr[px.clone()]);
                 for l in 0..LANES {
-                    if at_median.lane(l) {
-                        medpos[base + l] = pos_v;
-                    }
                     if blend.lane(l) {
                         last[base + l] = pos_v + 1;
                     }

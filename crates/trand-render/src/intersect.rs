@@ -54,6 +54,7 @@ impl<R: Real> Row<R> {
 /// widened by one pixel plus 1 % of its width, so the kernel's f32 rounding can never put a passing
 /// pixel outside it (tested against the kernel itself).
 #[inline(always)]
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
 pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     let cut = &p.cut;
     let y = y.to_f64();

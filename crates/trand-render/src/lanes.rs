@@ -130,6 +130,7 @@ impl<R: Real> BitAnd for M<R> {
     type Output = M<R>;
     /// `a & b` as the product of 0/1 lanes.
     #[inline(always)]
+    #[allow(clippy::suspicious_arithmetic_impl)]
     fn bitand(self, o: M<R>) -> M<R> {
         M(lanes!(R::ZERO, |l| self.0[l] * o.0[l]))
     }

@@ -33,4 +33,4 @@ pub mod simd;
 pub mod bench_scene;
 
 pub use params::{ParamsOf, SurfelParams};
-pub use render::{render, Gradients, Maps, OutputGrads, RenderError, RenderSettings, Rendered, MAX_OBJECTS};
+pub use render::{render, GeometryMaps, Gradients, Maps, OutputGrads, RenderError, RenderSettings, Rendered, MAX_OBJECTS};

@@ -41,6 +41,18 @@ impl Maps {
     }
 }
 
+/// Whether the geometric maps (expected and median depth, normal, distortion) are rendered. Training
+/// on images alone (TRAN-D's default, with the 2DGS normal and distortion losses off) needs none of
+/// them; skipping their accumulation saves about a quarter of the forward kernel's arithmetic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum GeometryMaps {
+    #[default]
+    Rendered,
+    /// Not rendered: `depth`, `median`, `normal` and `distortion` come back empty, and the backward pass
+    /// accepts no gradient for `median` or `distortion` (it would need their forward state).
+    Skipped,
+}
+
 /// Render settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -51,11 +63,12 @@ pub struct RenderSettings {
     /// SH degree used for colours (at most the parameters' degree; `None` = the parameters' degree).
     pub sh_degree: Option<u32>,
     pub maps: Maps,
+    pub geometry: GeometryMaps,
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { background: [0.0; 3], near: DEFAULT_NEAR, sh_degree: None, maps: Maps::Rgb }
+        Self { background: [0.0; 3], near: DEFAULT_NEAR, sh_degree: None, maps: Maps::Rgb, geometry: GeometryMaps::Rendered }
     }
 }
 
@@ -178,6 +191,12 @@ impl<R: Real> Rendered<R> {
         check(&grads.median, 1, "median");
         check(&grads.normal, 3, "normal");
         check(&grads.distortion, 1, "distortion");
+        if s.settings.geometry == GeometryMaps::Skipped {
+            assert!(
+                grads.median.is_none() && grads.distortion.is_none(),
+                "median or distortion gradients need a render with GeometryMaps::Rendered"
+            );
+        }
         let maps = GradMaps {
             rgb: grads.rgb.as_deref(),
             mask: grads.mask.as_deref(),
@@ -343,7 +362,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         .zip(iblocks.par_chunks_mut(INT_CHANNELS * TILE_PIXELS))
         .enumerate()
         .with_min_len(4)
-        .for_each(|(t, (b, ib))| raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, b, ib));
+        .for_each(|(t, (b, ib))| raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, settings.geometry, b, ib));
 
     // Tile blocks → row-major maps.
     let (w, h) = (cam.width as usize, cam.height as usize);
@@ -372,10 +391,12 @@ pub fn render<R: Real, P: SurfelParams<R>>(
     let mask = if lay.has_mask { gather(lay.mask, 3) } else { Vec::new() };
     let objects = if lay.has_objects { gather(lay.obj, k) } else { Vec::new() };
     let alpha = gather(lay.alpha, 1);
-    let depth = gather(lay.depth, 1);
-    let median = gather(lay.median, 1);
-    let normal = gather(lay.normal, 3);
-    let distortion = gather(lay.dist, 1);
+    let geometry = settings.geometry == GeometryMaps::Rendered;
+    let maybe = |ch0: usize, nch: usize| if geometry { gather(ch0, nch) } else { Vec::new() };
+    let depth = maybe(lay.depth, 1);
+    let median = maybe(lay.median, 1);
+    let normal = maybe(lay.normal, 3);
+    let distortion = maybe(lay.dist, 1);
     let num_pairs = bins.num_pairs();
     let pixel_pairs = projs.iter().map(|p| ((p.bbox[2] - p.bbox[0] + 1) * (p.bbox[3] - p.bbox[1] + 1)) as usize).sum();
     Ok(Rendered {

@@ -21,6 +21,7 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::layout::Layout;
 use crate::preprocess::Proj;
+use crate::GeometryMaps;
 
 /// Asks the CPU to start loading the cache lines of `*r` (up to 256 bytes): the kernels call it for
 /// the surfel a few places ahead in a tile's list, whose data sits at a random address. A hint only:
@@ -92,7 +93,7 @@ dispatch!(
     /// Stage 3 for tile `t`: see [`crate::forward::raster_tile`].
     raster_tile, raster_tile_avx2, crate::forward::raster_tile,
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
-     buf: &mut [R], ibuf: &mut [u32])
+     geometry: GeometryMaps, buf: &mut [R], ibuf: &mut [u32])
 );
 
 dispatch!(

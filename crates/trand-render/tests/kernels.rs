@@ -11,7 +11,7 @@ use trand_render::intersect::{intersect, intersect_lanes, row_columns, Row};
 use trand_render::lanes::{M, V};
 use trand_render::preprocess::{preprocess_one, Proj};
 use trand_render::simd::{set_dispatch, Dispatch};
-use trand_render::{render, Maps, OutputGrads, RenderSettings};
+use trand_render::{render, GeometryMaps, Maps, OutputGrads, RenderSettings};
 
 /// Surfels of every shape the optimiser produces: tiny to large, round to needle-thin, any tilt
 /// (including nearly edge-on), opacity 0.005 to 0.999.
@@ -136,4 +136,34 @@ fn avx2_and_baseline_kernels_return_identical_bits() {
     let (auto, base) = (run(Dispatch::Auto), run(Dispatch::Baseline));
     assert_eq!(auto.len(), base.len());
     assert!(auto == base, "the AVX2 and baseline kernels differ");
+}
+
+#[test]
+fn skipping_the_geometric_maps_changes_no_other_output_or_gradient() {
+    let camera = common::test_camera(128, 96, 0.8);
+    let s = varied_scene(1200, 8);
+    let run = |geometry: GeometryMaps| {
+        let settings = RenderSettings { maps: Maps::All, background: [0.3, 0.2, 0.1], geometry, ..Default::default() };
+        let out = render::<f32, _>(&s, &camera, &settings).unwrap();
+        let n = out.alpha.len();
+        let g = OutputGrads {
+            rgb: Some((0..3 * n).map(|i| (i % 11) as f32 * 0.05 - 0.2).collect()),
+            mask: Some(vec![-0.1; 3 * n]),
+            objects: Some((0..3 * n).map(|i| (i % 3) as f32 * 0.1).collect()),
+            alpha: Some(vec![0.05; n]),
+            depth: Some(vec![0.2; n]),
+            ..Default::default()
+        };
+        let grads = out.backward(&s, &g);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let p = &grads.params;
+        let maps = [&out.rgb, &out.mask, &out.objects, &out.alpha].map(|m| bits(m));
+        let gr = [p.means.as_flattened(), p.quats.as_flattened(), p.log_scales.as_flattened(), &p.opacity_logits, &p.sh, &p.obj_logits]
+            .map(bits);
+        (maps, gr, out.depth.len(), out.median.len())
+    };
+    let (full, skipped) = (run(GeometryMaps::Rendered), run(GeometryMaps::Skipped));
+    assert!(full.0 == skipped.0, "rgb/mask/objects/alpha differ");
+    assert!(full.1 == skipped.1, "gradients differ");
+    assert!(full.2 > 0 && skipped.2 == 0 && skipped.3 == 0, "skipped maps come back empty");
 }

@@ -163,6 +163,7 @@ pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: 
 /// Farthest-point sampling of `count` of `points`: starts at point 0, then repeatedly takes the point with
 /// the largest squared distance to the chosen set (lowest index on ties). Each prefix of the result is the
 /// FPS of that length. Requires `count ≤ points.len()`.
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(d >= m)` on purpose: NaN handling, see the loop
 pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], count: usize) -> Vec<usize> {
     assert!(count <= points.len(), "FPS of {count} from {} points", points.len());
     if count == 0 {
@@ -170,21 +171,24 @@ pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], count: usize) -> Vec<
     }
     let mut chosen = Vec::with_capacity(count);
     chosen.push(0);
-    let mut min_d: Vec<R> = points.iter().map(|p| dist2(p, &points[0])).collect();
+    // One pass per new centre: update each point's distance to the chosen set and track the farthest.
+    let mut min_d: Vec<R> = vec![R::from_f64(f64::INFINITY); points.len()];
+    let mut c = points[0];
     while chosen.len() < count {
         let mut best = 0usize;
         let mut best_d = -R::ONE;
-        for (j, &d) in min_d.iter().enumerate() {
+        for (j, (m, p)) in min_d.iter_mut().zip(points).enumerate() {
+            // `!(d ≥ m)` rather than `min`: a non-finite point keeps a NaN distance and is never chosen.
+            let d = dist2(p, &c);
+            let d = if !(d >= *m) { d } else { *m };
+            *m = d;
             if d > best_d {
                 best = j;
                 best_d = d;
             }
         }
         chosen.push(best);
-        let c = points[best];
-        for (m, p) in min_d.iter_mut().zip(points) {
-            *m = m.min(dist2(p, &c));
-        }
+        c = points[best];
     }
     chosen
 }
