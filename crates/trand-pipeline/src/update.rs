@@ -78,7 +78,10 @@ pub struct UpdateOptions {
     pub mesh_depth: MeshDepth,
     pub motion: SurfelMotion,
     pub fill: InteriorFill,
-    /// Virtual views: elevations (degrees) × azimuths, at this image size and focal length.
+    /// Virtual views: elevations (degrees) × azimuths, at this image size and focal length. Default
+    /// 2 × 8 + the view from below = 17 views (the authors fuse their 10 test views + 1 from below);
+    /// three elevations (15°, 40°, 65°, 25 views) gave the same t=1 accuracy on both Blender sequences
+    /// (MAE 0.0400 / 0.0379 m vs 0.0390 / 0.0385 m) at 0.4–0.7 s more meshing.
     pub ring_elevations_deg: Vec<f64>,
     pub ring_azimuths: usize,
     pub virtual_width: u32,
@@ -123,7 +126,7 @@ impl Default for UpdateOptions {
             mesh_depth: MeshDepth::Expected,
             motion: SurfelMotion::Translate,
             fill: InteriorFill::None,
-            ring_elevations_deg: vec![15.0, 40.0, 65.0],
+            ring_elevations_deg: vec![20.0, 50.0],
             ring_azimuths: 8,
             virtual_width: 320,
             virtual_height: 240,
