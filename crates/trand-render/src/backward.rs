@@ -273,7 +273,7 @@ pub fn backward_tile<R: Real>(
                 let filter = h.valid & !h.object_space;
                 acc[rec::CENTER] += select(filter, rsub(p.center[0], xr) * filt2 * d_rho, zv);
                 acc[rec::CENTER + 1] += select(filter, d_rho * (filt2 * (p.center[1] - yr)), zv);
-                let inv = V::splat(R::ONE) / h.pz;
+                let inv = h.inv_pz;
                 let gp = [gu * inv, gv * inv, rsub(R::ZERO, gu * h.u + gv * h.v) * inv];
                 let k = [xr * p.t_w[0] - p.t_u[0], xr * p.t_w[1] - p.t_u[1], xr * p.t_w[2] - p.t_u[2]];
                 let l = row.l;

@@ -117,13 +117,14 @@ pub fn intersect<R: Real>(p: &Proj<R>, row: &Row<R>, x: R, near: R) -> Option<Hi
 
 /// The hits of eight pixels of a row, [`intersect`] lane by lane. Lanes that miss (outside `lanes`,
 /// parallel ray, behind the near plane, alpha below 1/255) have `valid` unset and are sanitised:
-/// `u = v = 0`, `z = p_z = 1`, `G = α = 0`, so any product with them is a finite zero.
+/// `u = v = 0`, `z = 1/p_z = 1`, `G = α = 0`, so any product with them is a finite zero.
 #[derive(Clone, Copy, Debug)]
 pub struct Hits<R> {
     pub u: V<R>,
     pub v: V<R>,
     pub z: V<R>,
-    pub pz: V<R>,
+    /// `1/p_z`, which the backward pass needs again.
+    pub inv_pz: V<R>,
     pub g: V<R>,
     pub alpha: V<R>,
     pub valid: M<R>,
@@ -160,7 +161,7 @@ pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, la
         u: select(valid, u, zero),
         v: select(valid, v, zero),
         z: select(valid, z, one),
-        pz: select(valid, pz, one),
+        inv_pz: select(valid, inv, one),
         g: select(valid, g, zero),
         alpha: select(valid, alpha, zero),
         valid,
@@ -169,20 +170,12 @@ pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, la
     }
 }
 
-/// [`ndc_depth`] per lane.
+/// NDC-mapped depth used by the distortion loss, `m(z) = f/(f−n)·(1 − n/z)`, and its derivative,
+/// per lane.
 #[inline(always)]
 pub fn ndc_depth_lanes<R: Real>(z: V<R>) -> (V<R>, V<R>) {
     let n = R::from_f64(crate::constants::DEFAULT_NEAR);
     let f = R::from_f64(crate::constants::FAR);
     let a = f / (f - n);
     (rsub(R::ONE, V::splat(n) / z) * a, (V::splat(a * n) / (z * z)))
-}
-
-/// NDC-mapped depth used by the distortion loss, `m(z) = f/(f−n)·(1 − n/z)`, and its derivative.
-#[inline(always)]
-pub fn ndc_depth<R: Real>(z: R) -> (R, R) {
-    let n = R::from_f64(crate::constants::DEFAULT_NEAR);
-    let f = R::from_f64(crate::constants::FAR);
-    let a = f / (f - n);
-    (a * (R::ONE - n / z), a * n / (z * z))
 }
