@@ -28,8 +28,8 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
-use crate::forward::{span_mask, tile_pixels, Plane};
-use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
+use crate::forward::{cut_row, half_columns, span_mask, tile_pixels, Plane};
+use crate::intersect::{intersect_lanes, ndc_depth_lanes, Row};
 use crate::lanes::{rsub, select, LANES, M, V};
 use crate::layout::Layout;
 use crate::simd::{prefetch, PREFETCH_AHEAD};
@@ -162,8 +162,7 @@ pub fn backward_tile<R: Real>(
     // Per-lane partial sums of the pair's record; summed over the lanes when the pair is done.
     let mut acc = [zv; rec::OBJ];
     let mut acc_obj = [zv; crate::MAX_OBJECTS];
-    let xs: [V<R>; 2] =
-        std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))));
+    let xs = half_columns::<R>(tx0);
 
     for pos in (0..max_last).rev() {
         while next < order.len() && last[order[next] as usize] as usize > pos {
@@ -188,12 +187,7 @@ pub fn backward_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let Some((c0, c1)) = row_columns(p, yr) else { continue };
-            let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
-            if c0 > c1 {
-                continue;
-            }
-            let bits = bits & span_mask(c0, c1);
+            let bits = cut_row(p, yr, tx0, x0, x1, bits);
             if bits == 0 {
                 continue;
             }

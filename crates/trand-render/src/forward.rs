@@ -52,6 +52,24 @@ pub fn span_mask(x0: i32, x1: i32) -> u16 {
     (((1u32 << n) - 1) << x0) as u16
 }
 
+/// Image columns of the two eight-pixel halves of a row of the tile starting at column `tx0`.
+#[inline(always)]
+pub fn half_columns<R: Real>(tx0: i32) -> [V<R>; 2] {
+    std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))))
+}
+
+/// `bits` (a row's pixels, tile-local, within the surfel's box columns `x0..=x1`) restricted to the
+/// columns of image row `yr` where the surfel can reach α ≥ 1/255 ([`row_columns`]); 0 when none.
+#[inline(always)]
+pub fn cut_row<R: Real>(p: &Proj<R>, yr: R, tx0: i32, x0: i32, x1: i32, bits: u16) -> u16 {
+    let Some((c0, c1)) = row_columns(p, yr) else { return 0 };
+    let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
+    if c0 > c1 {
+        return 0;
+    }
+    bits & span_mask(c0, c1)
+}
+
 /// The rows' masks of pixels inside the image.
 pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usize] {
     let mut m = [0u16; TILE as usize];
@@ -102,9 +120,7 @@ pub fn raster_tile<R: Real>(
     let min_t = R::from_f64(MIN_TRANSMITTANCE);
     let two = R::from_f64(2.0);
 
-    // Columns of the two row halves.
-    let xs: [V<R>; 2] =
-        std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))));
+    let xs = half_columns::<R>(tx0);
 
     let list = bins.tile(t);
     for (pos, &j) in list.iter().enumerate() {
@@ -123,12 +139,7 @@ pub fn raster_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let Some((c0, c1)) = row_columns(p, yr) else { continue };
-            let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
-            if c0 > c1 {
-                continue;
-            }
-            let bits = bits & span_mask(c0, c1);
+            let bits = cut_row(p, yr, tx0, x0, x1, bits);
             if bits == 0 {
                 continue;
             }
