@@ -17,7 +17,6 @@ pub struct Hit<R> {
     pub u: R,
     pub v: R,
     pub z: R,
-    pub pz: R,
     pub g: R,
     pub alpha: R,
     /// `ρ₃ ≤ ρ₂`: the object-space kernel is active (else the screen-space filter).
@@ -112,7 +111,7 @@ pub fn intersect<R: Real>(p: &Proj<R>, row: &Row<R>, x: R, near: R) -> Option<Hi
     if alpha < R::from_f64(MIN_ALPHA) {
         return None;
     }
-    Some(Hit { u, v, z, pz, g, alpha, object_space, clamped })
+    Some(Hit { u, v, z, g, alpha, object_space, clamped })
 }
 
 /// The hits of eight pixels of a row, [`intersect`] lane by lane. Lanes that miss (outside `lanes`,
