@@ -2,16 +2,28 @@
 //! at native and half resolution: `cargo run --release -p trand-cli --example render_run -- RUN SEQ`.
 use std::time::Instant;
 
-use trand_render::{render, Maps, OutputGrads, RenderSettings};
+use trand_render::{Maps, OutputGrads, RenderSettings, render};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let s = trand_io::read_surfels_ply(std::path::Path::new(&args[1]).join("surfels.ply").as_path()).expect("surfels");
-    let seq = trand_io::read_sequence_with(std::path::Path::new(&args[2]), &trand_io::LoadOptions::cameras_only()).expect("sequence");
+    let s =
+        trand_io::read_surfels_ply(std::path::Path::new(&args[1]).join("surfels.ply").as_path())
+            .expect("surfels");
+    let seq = trand_io::read_sequence_with(
+        std::path::Path::new(&args[2]),
+        &trand_io::LoadOptions::cameras_only(),
+    )
+    .expect("sequence");
     let cam0 = seq.train_t0[1].camera;
     for scale in [1.0, 0.5] {
-        let cam = trand_core::Camera { intrinsics: cam0.intrinsics.scaled(scale), ..cam0 };
-        let settings = RenderSettings { maps: Maps::All, ..Default::default() };
+        let cam = trand_core::Camera {
+            intrinsics: cam0.intrinsics.scaled(scale),
+            ..cam0
+        };
+        let settings = RenderSettings {
+            maps: Maps::All,
+            ..Default::default()
+        };
         let np = cam.intrinsics.num_pixels();
         let g = OutputGrads {
             rgb: Some(vec![1e-3f32; np * 3]),
@@ -35,7 +47,13 @@ fn main() {
         let fb = t.elapsed().as_secs_f64() / reps as f64;
         println!(
             "{}x{}: {} surfels, tile pairs {}, pixel pairs {}: forward {:.1} ms, forward+backward {:.1} ms",
-            cam.intrinsics.width, cam.intrinsics.height, s.len(), pairs.0, pairs.1, fwd * 1e3, fb * 1e3
+            cam.intrinsics.width,
+            cam.intrinsics.height,
+            s.len(),
+            pairs.0,
+            pairs.1,
+            fwd * 1e3,
+            fb * 1e3
         );
     }
 }

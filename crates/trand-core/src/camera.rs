@@ -42,7 +42,14 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// A camera with the principal point at the image centre, `cx = (W−1)/2`.
     pub fn centered(f: f64, width: u32, height: u32) -> Self {
-        Self { fx: f, fy: f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0, width, height }
+        Self {
+            fx: f,
+            fy: f,
+            cx: (width as f64 - 1.0) / 2.0,
+            cy: (height as f64 - 1.0) / 2.0,
+            width,
+            height,
+        }
     }
 
     /// Scales the image by `s` (e.g. 0.5 to halve the resolution), keeping the pixel-centre convention:
@@ -75,7 +82,11 @@ pub struct Camera {
 
 impl Camera {
     pub fn new(intrinsics: Intrinsics, r_w2c: [[f64; 3]; 3], t_w2c: [f64; 3]) -> Self {
-        Self { intrinsics, r_w2c, t_w2c }
+        Self {
+            intrinsics,
+            r_w2c,
+            t_w2c,
+        }
     }
 
     /// A camera at `eye` looking at `target`, with the image "up" as close as possible to `up`
@@ -95,7 +106,11 @@ impl Camera {
 
     pub fn from_glam(intrinsics: Intrinsics, r_w2c: DMat3, t_w2c: DVec3) -> Self {
         let rows = r_w2c.transpose().to_cols_array_2d();
-        Self { intrinsics, r_w2c: rows, t_w2c: t_w2c.to_array() }
+        Self {
+            intrinsics,
+            r_w2c: rows,
+            t_w2c: t_w2c.to_array(),
+        }
     }
 
     /// Rotation as a glam matrix.
@@ -143,7 +158,10 @@ impl Camera {
     pub fn validate(&self) -> Result<(), CameraError> {
         let k = &self.intrinsics;
         if k.width == 0 || k.height == 0 {
-            return Err(CameraError::EmptyImage { width: k.width, height: k.height });
+            return Err(CameraError::EmptyImage {
+                width: k.width,
+                height: k.height,
+            });
         }
         if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0) {
             return Err(CameraError::BadFocal { fx: k.fx, fy: k.fy });
@@ -151,11 +169,20 @@ impl Camera {
         if !(k.cx.is_finite() && k.cy.is_finite()) {
             return Err(CameraError::BadPrincipalPoint { cx: k.cx, cy: k.cy });
         }
-        if self.r_w2c.iter().flatten().chain(&self.t_w2c).any(|v| !v.is_finite()) {
+        if self
+            .r_w2c
+            .iter()
+            .flatten()
+            .chain(&self.t_w2c)
+            .any(|v| !v.is_finite())
+        {
             return Err(CameraError::NonFinitePose);
         }
         let r = self.rotation();
-        let e = (r.transpose() * r - DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let e = (r.transpose() * r - DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
         if e > 1e-3 {
             return Err(CameraError::NotARotation(e));
         }
@@ -170,10 +197,18 @@ mod tests {
     #[test]
     fn look_at_puts_target_on_principal_point() {
         let k = Intrinsics::centered(600.0, 640, 480);
-        let cam = Camera::look_at(k, DVec3::new(0.3, -0.4, 0.5), DVec3::new(0.0, 0.0, 0.05), DVec3::Z);
+        let cam = Camera::look_at(
+            k,
+            DVec3::new(0.3, -0.4, 0.5),
+            DVec3::new(0.0, 0.0, 0.05),
+            DVec3::Z,
+        );
         cam.validate().unwrap();
         let (x, y, z) = cam.project(DVec3::new(0.0, 0.0, 0.05)).unwrap();
-        assert!((x - 319.5).abs() < 1e-9 && (y - 239.5).abs() < 1e-9, "({x}, {y})");
+        assert!(
+            (x - 319.5).abs() < 1e-9 && (y - 239.5).abs() < 1e-9,
+            "({x}, {y})"
+        );
         assert!((z - (0.3f64.powi(2) + 0.4f64.powi(2) + 0.45f64.powi(2)).sqrt()).abs() < 1e-12);
         // World up appears as image up (negative y).
         let (_, y_up, _) = cam.project(DVec3::new(0.0, 0.0, 0.10)).unwrap();
@@ -182,7 +217,12 @@ mod tests {
 
     #[test]
     fn degenerate_cameras_are_rejected() {
-        let good = Camera::look_at(Intrinsics::centered(500.0, 64, 48), DVec3::new(0.0, 0.0, 1.0), DVec3::ZERO, DVec3::Y);
+        let good = Camera::look_at(
+            Intrinsics::centered(500.0, 64, 48),
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::ZERO,
+            DVec3::Y,
+        );
         assert!(good.validate().is_ok());
         let mut c = good;
         c.intrinsics.fx = 0.0;

@@ -69,9 +69,21 @@ pub fn quat_to_rotmat<R: Real>(q: [R; 4]) -> Option<([[R; 3]; 3], [R; 4])> {
     let (w, x, y, z) = (q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv);
     let two = R::from_f64(2.0);
     let m = [
-        [R::ONE - two * (y * y + z * z), two * (x * y - w * z), two * (x * z + w * y)],
-        [two * (x * y + w * z), R::ONE - two * (x * x + z * z), two * (y * z - w * x)],
-        [two * (x * z - w * y), two * (y * z + w * x), R::ONE - two * (x * x + y * y)],
+        [
+            R::ONE - two * (y * y + z * z),
+            two * (x * y - w * z),
+            two * (x * z + w * y),
+        ],
+        [
+            two * (x * y + w * z),
+            R::ONE - two * (x * x + z * z),
+            two * (y * z - w * x),
+        ],
+        [
+            two * (x * z - w * y),
+            two * (y * z + w * x),
+            R::ONE - two * (x * x + y * y),
+        ],
     ];
     Some((m, [w, x, y, z]))
 }
@@ -101,9 +113,15 @@ pub fn rotmat_vjp<R: Real>(qn: [R; 4], g: [[R; 3]; 3]) -> [R; 4] {
 /// VJP of `q ↦ q / |q|`: `g_raw = (g - (g·q̂) q̂) / |q|`.
 #[inline]
 pub fn normalize_vjp<R: Real>(q_raw: [R; 4], g: [R; 4]) -> [R; 4] {
-    let n = (q_raw[0] * q_raw[0] + q_raw[1] * q_raw[1] + q_raw[2] * q_raw[2] + q_raw[3] * q_raw[3]).sqrt();
+    let n = (q_raw[0] * q_raw[0] + q_raw[1] * q_raw[1] + q_raw[2] * q_raw[2] + q_raw[3] * q_raw[3])
+        .sqrt();
     let inv = R::ONE / n;
-    let qn = [q_raw[0] * inv, q_raw[1] * inv, q_raw[2] * inv, q_raw[3] * inv];
+    let qn = [
+        q_raw[0] * inv,
+        q_raw[1] * inv,
+        q_raw[2] * inv,
+        q_raw[3] * inv,
+    ];
     let d = g[0] * qn[0] + g[1] * qn[1] + g[2] * qn[2] + g[3] * qn[3];
     [
         (g[0] - d * qn[0]) * inv,
@@ -142,7 +160,10 @@ mod tests {
         let g = [[0.3, -1.1, 0.5], [0.7, 0.2, -0.4], [-0.6, 0.8, 1.3]];
         let loss = |q: [f64; 4]| {
             let (m, _) = quat_to_rotmat(q).unwrap();
-            (0..3).flat_map(|i| (0..3).map(move |j| (i, j))).map(|(i, j)| g[i][j] * m[i][j]).sum::<f64>()
+            (0..3)
+                .flat_map(|i| (0..3).map(move |j| (i, j)))
+                .map(|(i, j)| g[i][j] * m[i][j])
+                .sum::<f64>()
         };
         let (_, qn) = quat_to_rotmat(q).unwrap();
         let an = normalize_vjp(q, rotmat_vjp(qn, g));
@@ -152,7 +173,11 @@ mod tests {
             qp[k] += h;
             qm[k] -= h;
             let fd = (loss(qp) - loss(qm)) / (2.0 * h);
-            assert!((fd - an[k]).abs() < 1e-8, "component {k}: fd {fd} analytic {}", an[k]);
+            assert!(
+                (fd - an[k]).abs() < 1e-8,
+                "component {k}: fd {fd} analytic {}",
+                an[k]
+            );
         }
     }
 

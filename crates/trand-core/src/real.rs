@@ -75,7 +75,9 @@ pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
     for l in 0..8 {
         let r = xc[l] - n[l] * 0.693_145_75 - n[l] * 1.428_606_8e-6;
         p[l] = 1.0
-            + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+            + r * (1.0
+                + r * (0.5
+                    + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
     }
     let mut out = [0.0f32; 8];
     for l in 0..8 {
@@ -93,7 +95,13 @@ pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
 pub fn fast_exp_f32(x: f32) -> f32 {
     // Branch-free (a select at the end), so that a loop over lanes vectorizes.
     let underflow = x < -87.0;
-    let x = if underflow { -87.0 } else if x > 88.0 { 88.0 } else { x };
+    let x = if underflow {
+        -87.0
+    } else if x > 88.0 {
+        88.0
+    } else {
+        x
+    };
     // n = round(x·log2 e) by the 1.5·2²³ trick: after the addition the low mantissa bits hold n, so
     // both n as a float and n as an integer come out without a (saturating, unvectorizable) cast.
     const MAGIC: f32 = 12_582_912.0;
@@ -103,7 +111,9 @@ pub fn fast_exp_f32(x: f32) -> f32 {
     // ln2 split in a high part exact in f32 and a low correction.
     let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
     let p = 1.0
-        + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
     let bits = ((ni + 127) as u32) << 23;
     let e = p * f32::from_bits(bits);
     if underflow { 0.0 } else { e }
@@ -202,7 +212,12 @@ mod tests {
             let x: [f32; 8] = std::array::from_fn(|l| -95.0 + 0.000_6 * (8 * i + l) as f32);
             let lanes = fast_exp_f32x8(x);
             for l in 0..8 {
-                assert_eq!(lanes[l].to_bits(), fast_exp_f32(x[l]).to_bits(), "x = {}", x[l]);
+                assert_eq!(
+                    lanes[l].to_bits(),
+                    fast_exp_f32(x[l]).to_bits(),
+                    "x = {}",
+                    x[l]
+                );
             }
         }
         assert_eq!(fast_exp_f32(0.0), 1.0);

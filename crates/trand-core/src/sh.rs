@@ -97,7 +97,11 @@ pub fn basis_jacobian<R: Real>(degree: u32, d: [R; 3], jac: &mut [[R; 3]; 16]) {
     let two = c(2.0);
     jac[4] = [c(SH_C2[0]) * y, c(SH_C2[0]) * x, z0];
     jac[5] = [z0, c(SH_C2[1]) * z, c(SH_C2[1]) * y];
-    jac[6] = [-two * c(SH_C2[2]) * x, -two * c(SH_C2[2]) * y, c(4.0) * c(SH_C2[2]) * z];
+    jac[6] = [
+        -two * c(SH_C2[2]) * x,
+        -two * c(SH_C2[2]) * y,
+        c(4.0) * c(SH_C2[2]) * z,
+    ];
     jac[7] = [c(SH_C2[3]) * z, z0, c(SH_C2[3]) * x];
     jac[8] = [two * c(SH_C2[4]) * x, -two * c(SH_C2[4]) * y, z0];
     if degree == 2 {
@@ -105,8 +109,16 @@ pub fn basis_jacobian<R: Real>(degree: u32, d: [R; 3], jac: &mut [[R; 3]; 16]) {
     }
     let (xx, yy, zz) = (x * x, y * y, z * z);
     let (three, four, six, eight) = (c(3.0), c(4.0), c(6.0), c(8.0));
-    jac[9] = [c(SH_C3[0]) * six * x * y, c(SH_C3[0]) * (three * xx - three * yy), z0];
-    jac[10] = [c(SH_C3[1]) * y * z, c(SH_C3[1]) * x * z, c(SH_C3[1]) * x * y];
+    jac[9] = [
+        c(SH_C3[0]) * six * x * y,
+        c(SH_C3[0]) * (three * xx - three * yy),
+        z0,
+    ];
+    jac[10] = [
+        c(SH_C3[1]) * y * z,
+        c(SH_C3[1]) * x * z,
+        c(SH_C3[1]) * x * y,
+    ];
     jac[11] = [
         -two * c(SH_C3[2]) * x * y,
         c(SH_C3[2]) * (four * zz - xx - three * yy),
@@ -122,8 +134,16 @@ pub fn basis_jacobian<R: Real>(degree: u32, d: [R; 3], jac: &mut [[R; 3]; 16]) {
         -two * c(SH_C3[4]) * x * y,
         eight * c(SH_C3[4]) * x * z,
     ];
-    jac[14] = [two * c(SH_C3[5]) * x * z, -two * c(SH_C3[5]) * y * z, c(SH_C3[5]) * (xx - yy)];
-    jac[15] = [c(SH_C3[6]) * (three * xx - three * yy), -six * c(SH_C3[6]) * x * y, z0];
+    jac[14] = [
+        two * c(SH_C3[5]) * x * z,
+        -two * c(SH_C3[5]) * y * z,
+        c(SH_C3[5]) * (xx - yy),
+    ];
+    jac[15] = [
+        c(SH_C3[6]) * (three * xx - three * yy),
+        -six * c(SH_C3[6]) * x * y,
+        z0,
+    ];
 }
 
 #[cfg(test)]
@@ -144,7 +164,11 @@ mod tests {
             basis(3, dm, &mut bm);
             for k in 0..16 {
                 let fd = (bp[k] - bm[k]) / 2e-6;
-                assert!((fd - jac[k][a]).abs() < 1e-8, "coeff {k} axis {a}: fd {fd} vs {}", jac[k][a]);
+                assert!(
+                    (fd - jac[k][a]).abs() < 1e-8,
+                    "coeff {k} axis {a}: fd {fd} vs {}",
+                    jac[k][a]
+                );
             }
         }
     }

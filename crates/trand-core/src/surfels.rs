@@ -18,7 +18,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::sh::{num_coeffs, MAX_SH_DEGREE};
+use crate::sh::{MAX_SH_DEGREE, num_coeffs};
 
 /// Default number of object channels (TRAN-D's `NUM_OBJ`: background + up to 14 objects).
 pub const DEFAULT_NUM_OBJECTS: usize = 15;
@@ -30,7 +30,12 @@ pub enum SurfelsError {
     #[error("number of object channels must be at least 1")]
     NoObjects,
     #[error("field `{field}` has {got} values, expected {expected} for {n} surfels")]
-    Length { field: &'static str, got: usize, expected: usize, n: usize },
+    Length {
+        field: &'static str,
+        got: usize,
+        expected: usize,
+        n: usize,
+    },
     #[error("surfel {index}: field `{field}` is not finite")]
     NonFinite { field: &'static str, index: usize },
 }
@@ -73,7 +78,11 @@ impl Surfels {
         if num_objects == 0 {
             return Err(SurfelsError::NoObjects);
         }
-        Ok(Self { sh_degree, num_objects, ..Default::default() })
+        Ok(Self {
+            sh_degree,
+            num_objects,
+            ..Default::default()
+        })
     }
 
     pub fn len(&self) -> usize {
@@ -106,7 +115,8 @@ impl Surfels {
         self.sh_rest.extend(std::iter::repeat_n(0.0, rs));
         self.mask_rest.extend(std::iter::repeat_n(0.0, rs));
         if s.obj_logits.is_empty() {
-            self.obj_logits.extend(std::iter::repeat_n(0.0, self.num_objects));
+            self.obj_logits
+                .extend(std::iter::repeat_n(0.0, self.num_objects));
         } else {
             assert_eq!(s.obj_logits.len(), self.num_objects, "object logits length");
             self.obj_logits.extend_from_slice(&s.obj_logits);
@@ -183,7 +193,11 @@ impl Surfels {
 
     /// A new set made of the surfels at `idx` (repeats allowed), in that order.
     pub fn gather(&self, idx: &[usize]) -> Self {
-        let mut out = Self { sh_degree: self.sh_degree, num_objects: self.num_objects, ..Default::default() };
+        let mut out = Self {
+            sh_degree: self.sh_degree,
+            num_objects: self.num_objects,
+            ..Default::default()
+        };
         for (g, src) in self.groups() {
             let stride = self.stride(g);
             let mut dst = Vec::with_capacity(idx.len() * stride);
@@ -197,7 +211,10 @@ impl Surfels {
 
     /// Appends all surfels of `other` (same degree and object count).
     pub fn append(&mut self, other: &Self) {
-        assert_eq!((self.sh_degree, self.num_objects), (other.sh_degree, other.num_objects));
+        assert_eq!(
+            (self.sh_degree, self.num_objects),
+            (other.sh_degree, other.num_objects)
+        );
         self.means.extend_from_slice(&other.means);
         self.log_scales.extend_from_slice(&other.log_scales);
         self.quats.extend_from_slice(&other.quats);
@@ -211,7 +228,9 @@ impl Surfels {
 
     fn set_group(&mut self, g: ParamGroup, v: Vec<f32>) {
         fn chunk<const N: usize>(v: Vec<f32>) -> Vec<[f32; N]> {
-            v.chunks_exact(N).map(|c| c.try_into().expect("chunk length")).collect()
+            v.chunks_exact(N)
+                .map(|c| c.try_into().expect("chunk length"))
+                .collect()
         }
         match g {
             ParamGroup::Means => self.means = chunk(v),
@@ -260,10 +279,18 @@ impl Surfels {
         for (g, v) in self.groups() {
             let expected = n * self.stride(g);
             if v.len() != expected {
-                return Err(SurfelsError::Length { field: g.name(), got: v.len(), expected, n });
+                return Err(SurfelsError::Length {
+                    field: g.name(),
+                    got: v.len(),
+                    expected,
+                    n,
+                });
             }
             if let Some(p) = v.iter().position(|x| !x.is_finite()) {
-                return Err(SurfelsError::NonFinite { field: g.name(), index: p / self.stride(g).max(1) });
+                return Err(SurfelsError::NonFinite {
+                    field: g.name(),
+                    index: p / self.stride(g).max(1),
+                });
             }
         }
         Ok(())
@@ -344,7 +371,10 @@ mod tests {
         assert_eq!(g.sh_rest[9], 1.0);
         assert_eq!(g.obj_logits[4 * 2 + 2], 3.0);
         s.retain(&[true, false, true, false, true]);
-        assert_eq!(s.means.iter().map(|m| m[0]).collect::<Vec<_>>(), vec![0.0, 2.0, 4.0]);
+        assert_eq!(
+            s.means.iter().map(|m| m[0]).collect::<Vec<_>>(),
+            vec![0.0, 2.0, 4.0]
+        );
         assert_eq!(s.obj_logits[4 + 2], 2.0);
         s.validate().unwrap();
     }
@@ -355,14 +385,21 @@ mod tests {
         s.push(&surfel(0.0));
         s.push(&surfel(1.0));
         s.opacity_logits[1] = f32::NAN;
-        assert_eq!(s.validate(), Err(SurfelsError::NonFinite { field: "opacity_logits", index: 1 }));
+        assert_eq!(
+            s.validate(),
+            Err(SurfelsError::NonFinite {
+                field: "opacity_logits",
+                index: 1
+            })
+        );
     }
 
     #[test]
     fn raising_sh_degree_keeps_low_coefficients() {
         let mut s = Surfels::new(1, 1).unwrap();
         s.push(&surfel(0.0));
-        s.sh_rest.copy_from_slice(&[1., 2., 3., 4., 5., 6., 7., 8., 9.]);
+        s.sh_rest
+            .copy_from_slice(&[1., 2., 3., 4., 5., 6., 7., 8., 9.]);
         s.set_sh_degree(3).unwrap();
         assert_eq!(s.sh_rest.len(), 45);
         assert_eq!(&s.sh_rest[..9], &[1., 2., 3., 4., 5., 6., 7., 8., 9.]);

@@ -86,7 +86,13 @@ pub enum IoError {
 impl IoError {
     /// `Ok` when an image of `w × h` read from `path` has the camera's size `k`; else
     /// [`IoError::SizeMismatch`] naming the camera `field` that gave the expected size.
-    pub(crate) fn check_size(w: u32, h: u32, k: &trand_core::Intrinsics, path: &std::path::Path, field: String) -> Result<(), Self> {
+    pub(crate) fn check_size(
+        w: u32,
+        h: u32,
+        k: &trand_core::Intrinsics,
+        path: &std::path::Path,
+        field: String,
+    ) -> Result<(), Self> {
         if (w, h) == (k.width, k.height) {
             return Ok(());
         }

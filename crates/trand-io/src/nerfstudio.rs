@@ -123,7 +123,8 @@ fn read_file(
         } else {
             Split::Train
         };
-        let size_check = |w: u32, h: u32, p: &Path, field: &str| IoError::check_size(w, h, &k, p, f.name(field));
+        let size_check =
+            |w: u32, h: u32, p: &Path, field: &str| IoError::check_size(w, h, &k, p, f.name(field));
         let rgb = if opts.rgb.yes() {
             let p = resolve(base, file);
             let img = read_rgb8(&p)?;

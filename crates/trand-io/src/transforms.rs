@@ -101,7 +101,8 @@ fn read_file(
         };
         let rgb_rel = f.str(rgb_field)?;
         let frame = frame_number(rgb_rel).unwrap_or(i as u32);
-        let size_check = |w: u32, h: u32, p: &Path| IoError::check_size(w, h, &k, p, f.name("cam.w/h"));
+        let size_check =
+            |w: u32, h: u32, p: &Path| IoError::check_size(w, h, &k, p, f.name("cam.w/h"));
         let rgb = if opts.rgb.yes() {
             let p = resolve(base, rgb_rel);
             let img = read_rgb8(&p)?;

@@ -10,12 +10,17 @@ use std::time::Instant;
 use trand_physics::{MpmConfig, MpmSolver};
 
 fn main() {
-    let dir = std::env::var("TRAND_MPM_FIXTURE").unwrap_or_else(|_| concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/mpm-reference").into());
+    let dir = std::env::var("TRAND_MPM_FIXTURE").unwrap_or_else(|_| {
+        concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/mpm-reference").into()
+    });
     let path = format!("{dir}/particles_in.npy");
     let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("cannot read {path}: {e}"));
     let flat: Vec<f32> = npyz::NpyFile::new(&bytes[..]).unwrap().into_vec().unwrap();
     let positions: Vec<[f32; 3]> = flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let frames = std::env::var("TRAND_MPM_FRAMES").ok().and_then(|s| s.parse().ok()).unwrap_or(100u32);
+    let frames = std::env::var("TRAND_MPM_FRAMES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(100u32);
 
     let mut warm = MpmSolver::new(MpmConfig::default(), &positions).unwrap();
     warm.step_frame().unwrap();

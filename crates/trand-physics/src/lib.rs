@@ -19,6 +19,8 @@ pub mod virtual_views;
 
 pub use mesh::{Mesh, MeshError};
 pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume};
-pub use particles::{InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles};
+pub use particles::{
+    InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles,
+};
 pub use tsdf::{TsdfError, TsdfSettings, TsdfVolume};
 pub use virtual_views::{below_view, focus_point, ring_views, scene_radius};

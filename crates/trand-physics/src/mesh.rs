@@ -88,7 +88,9 @@ impl Mesh {
         self.faces = faces
             .into_iter()
             .zip(comp)
-            .filter(|(f, c)| sizes[*c as usize] >= min_size && f[0] != f[1] && f[1] != f[2] && f[0] != f[2])
+            .filter(|(f, c)| {
+                sizes[*c as usize] >= min_size && f[0] != f[1] && f[1] != f[2] && f[0] != f[2]
+            })
             .map(|(f, _)| f)
             .collect();
         self.remove_unreferenced_vertices();
@@ -130,18 +132,32 @@ impl Mesh {
     /// Labels every vertex with the label of its nearest labelled point (exact kd-tree search,
     /// kiddo). TRAN-D compares TSDF-averaged colours for exact equality, which silently drops
     /// boundary vertices; the nearest object surfel labels every vertex.
-    pub fn label_by_nearest(&mut self, points: &[[f32; 3]], labels: &[u16]) -> Result<(), MeshError> {
+    pub fn label_by_nearest(
+        &mut self,
+        points: &[[f32; 3]],
+        labels: &[u16],
+    ) -> Result<(), MeshError> {
         if points.len() != labels.len() {
-            return Err(MeshError::LabelCountMismatch { points: points.len(), labels: labels.len() });
+            return Err(MeshError::LabelCountMismatch {
+                points: points.len(),
+                labels: labels.len(),
+            });
         }
         if points.is_empty() {
             return Err(MeshError::NoLabelledPoints);
         }
-        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(points).map_err(|e| MeshError::KdTree(format!("{e:?}")))?;
+        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(points)
+            .map_err(|e| MeshError::KdTree(format!("{e:?}")))?;
         let out = self
             .vertices
             .par_iter()
-            .map(|v| labels[tree.query(v).nearest_one::<SquaredEuclidean<f32>>().execute().item as usize])
+            .map(|v| {
+                labels[tree
+                    .query(v)
+                    .nearest_one::<SquaredEuclidean<f32>>()
+                    .execute()
+                    .item as usize]
+            })
             .collect();
         self.labels = Some(out);
         Ok(())
@@ -149,8 +165,14 @@ impl Mesh {
 
     /// The faces whose three vertices carry `label` (requires labels).
     pub fn faces_with_label(&self, label: u16) -> Vec<[u32; 3]> {
-        let Some(l) = &self.labels else { return Vec::new() };
-        self.faces.iter().filter(|f| f.iter().all(|&v| l[v as usize] == label)).copied().collect()
+        let Some(l) = &self.labels else {
+            return Vec::new();
+        };
+        self.faces
+            .iter()
+            .filter(|f| f.iter().all(|&v| l[v as usize] == label))
+            .copied()
+            .collect()
     }
 }
 
@@ -181,7 +203,12 @@ mod tests {
         m.remove_small_components();
         assert_eq!(m.faces.len(), 60 + 50 + 200);
         assert_eq!(m.vertices.len(), 62 + 52 + 202); // a fan of t triangles has t + 2 vertices
-        assert!(m.faces.iter().flatten().all(|&v| (v as usize) < m.vertices.len()));
+        assert!(
+            m.faces
+                .iter()
+                .flatten()
+                .all(|&v| (v as usize) < m.vertices.len())
+        );
     }
 
     #[test]
@@ -196,9 +223,13 @@ mod tests {
     #[test]
     fn vertices_take_the_label_of_the_nearest_point() {
         let mut m = clusters(&[3]);
-        m.label_by_nearest(&[[0.0, 0.0, 0.0], [0.0, 3.0, 1.0]], &[7, 9]).unwrap();
+        m.label_by_nearest(&[[0.0, 0.0, 0.0], [0.0, 3.0, 1.0]], &[7, 9])
+            .unwrap();
         assert_eq!(m.labels.as_deref(), Some(&[7, 7, 7, 9, 9][..]));
         assert_eq!(m.faces_with_label(7).len(), 1);
-        assert_eq!(m.label_by_nearest(&[], &[]), Err(MeshError::NoLabelledPoints));
+        assert_eq!(
+            m.label_by_nearest(&[], &[]),
+            Err(MeshError::NoLabelledPoints)
+        );
     }
 }

@@ -132,7 +132,10 @@ impl MpmConfig {
     /// Lamé parameters `(μ, λ) = (E / 2(1+ν), Eν / (1+ν)(1−2ν))`.
     pub fn lame(&self) -> (f32, f32) {
         let (e, nu) = (self.youngs_modulus, self.poisson_ratio);
-        (e / (2.0 * (1.0 + nu)), e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)))
+        (
+            e / (2.0 * (1.0 + nu)),
+            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+        )
     }
 
     /// Volume of one particle in m³.
@@ -188,9 +191,13 @@ pub enum MpmError {
     NonFinitePosition { index: usize, position: [f32; 3] },
     #[error("invalid MPM config: {0}")]
     InvalidConfig(String),
-    #[error("the grid around the particles needs {nodes} nodes (max {max}): the particles span too large a region (exploded?)")]
+    #[error(
+        "the grid around the particles needs {nodes} nodes (max {max}): the particles span too large a region (exploded?)"
+    )]
     GridTooLarge { nodes: usize, max: usize },
-    #[error("particle {index} left the finite numbers (the simulation diverged; try smaller substeps)")]
+    #[error(
+        "particle {index} left the finite numbers (the simulation diverged; try smaller substeps)"
+    )]
     Diverged { index: usize },
 }
 
@@ -253,10 +260,19 @@ impl MpmSolver {
     pub fn new(config: MpmConfig, positions: &[[f32; 3]]) -> Result<Self, MpmError> {
         config.validate()?;
         if positions.len() > config.max_particles || positions.len() > u32::MAX as usize {
-            return Err(MpmError::TooManyParticles { count: positions.len(), max: config.max_particles });
+            return Err(MpmError::TooManyParticles {
+                count: positions.len(),
+                max: config.max_particles,
+            });
         }
-        if let Some(index) = positions.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
-            return Err(MpmError::NonFinitePosition { index, position: positions[index] });
+        if let Some(index) = positions
+            .iter()
+            .position(|p| p.iter().any(|c| !c.is_finite()))
+        {
+            return Err(MpmError::NonFinitePosition {
+                index,
+                position: positions[index],
+            });
         }
         let particles = positions
             .iter()
@@ -385,15 +401,26 @@ impl MpmSolver {
             .zip(self.chunks.par_iter_mut())
             .for_each(|(ps, cg)| p2g_chunk(ps, cg, &sp));
         if let Some(nodes) = self.chunks.iter().find_map(|c| c.too_large) {
-            return Err(MpmError::GridTooLarge { nodes, max: self.config.max_grid_nodes });
+            return Err(MpmError::GridTooLarge {
+                nodes,
+                max: self.config.max_grid_nodes,
+            });
         }
 
         // Global grid = union of the chunk grids.
         let lo = self.chunks.iter().map(|c| c.lo).reduce(IVec3::min).unwrap();
-        let hi = self.chunks.iter().map(|c| c.lo + c.dims).reduce(IVec3::max).unwrap();
+        let hi = self
+            .chunks
+            .iter()
+            .map(|c| c.lo + c.dims)
+            .reduce(IVec3::max)
+            .unwrap();
         let nodes = grid_nodes(lo, hi, 0);
         if nodes > self.config.max_grid_nodes {
-            return Err(MpmError::GridTooLarge { nodes, max: self.config.max_grid_nodes });
+            return Err(MpmError::GridTooLarge {
+                nodes,
+                max: self.config.max_grid_nodes,
+            });
         }
         let dims = hi - lo;
         self.grid.resize(nodes, Vec4::ZERO);
@@ -402,19 +429,25 @@ impl MpmSolver {
         let chunks = &self.chunks;
 
         // 2. Assemble (chunk order fixed) and update the grid, one z-layer per task.
-        self.grid.par_chunks_mut(layer).enumerate().for_each(|(z, nodes)| {
-            let gz = lo.z + z as i32;
-            nodes.fill(Vec4::ZERO);
-            for cg in chunks {
-                add_chunk_layer(nodes, lo, dims, gz, cg);
-            }
-            grid_update_layer(nodes, gz, &sp);
-        });
+        self.grid
+            .par_chunks_mut(layer)
+            .enumerate()
+            .for_each(|(z, nodes)| {
+                let gz = lo.z + z as i32;
+                nodes.fill(Vec4::ZERO);
+                for cg in chunks {
+                    add_chunk_layer(nodes, lo, dims, gz, cg);
+                }
+                grid_update_layer(nodes, gz, &sp);
+            });
 
         // 3. G2P.
         let (grid, grid_lo) = (&self.grid, self.grid_lo);
-        let diverged: Option<u32> =
-            self.particles.par_chunks_mut(CHUNK).map(|ps| g2p_chunk(ps, grid, grid_lo, dims, &sp)).reduce(|| None, Option::or);
+        let diverged: Option<u32> = self
+            .particles
+            .par_chunks_mut(CHUNK)
+            .map(|ps| g2p_chunk(ps, grid, grid_lo, dims, &sp))
+            .reduce(|| None, Option::or);
         match diverged {
             Some(id) => Err(MpmError::Diverged { index: id as usize }),
             None => Ok(()),
@@ -461,8 +494,10 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
         (p.rot, r) = polar_rotation_and_matrix(f, p.rot);
         let j = f.determinant();
         // Fixed-corotated Kirchhoff stress τ = 2μ(F − R)Fᵀ + λJ(J−1)I.
-        let tau = 2.0 * sp.mu * (f - r) * f.transpose() + DMat3::from_diagonal(DVec3::splat(sp.lambda * j * (j - 1.0)));
-        cg.affine.push((tau * sp.stress_scale).as_mat3() + sp.p_mass * p.c);
+        let tau = 2.0 * sp.mu * (f - r) * f.transpose()
+            + DMat3::from_diagonal(DVec3::splat(sp.lambda * j * (j - 1.0)));
+        cg.affine
+            .push((tau * sp.stress_scale).as_mat3() + sp.p_mass * p.c);
     }
     // Checked in i64 before anything is allocated: a particle flung far away (or a NaN, which
     // floors to 0 next to huge coordinates) must give an error, not an abort.
@@ -483,7 +518,11 @@ fn p2g_chunk(ps: &mut [Particle], cg: &mut ChunkGrid, sp: &StepParams) {
         // Momentum sent to node b + o: m v + A (o − f) dx, built incrementally along each axis.
         // (momentum, mass) as one Vec4; the affine columns carry no mass (w = 0).
         let m0 = (sp.p_mass * p.v - *a * (fx * sp.dx)).extend(sp.p_mass);
-        let (ax, ay, az) = ((a.x_axis * sp.dx).extend(0.0), (a.y_axis * sp.dx).extend(0.0), (a.z_axis * sp.dx).extend(0.0));
+        let (ax, ay, az) = (
+            (a.x_axis * sp.dx).extend(0.0),
+            (a.y_axis * sp.dx).extend(0.0),
+            (a.z_axis * sp.dx).extend(0.0),
+        );
         let o = (base - lo).as_uvec3();
         for k in 0..3 {
             let mk = m0 + az * k as f32;
@@ -532,7 +571,11 @@ fn grid_update_layer(layer: &mut [Vec4], gz: i32, sp: &StepParams) {
     let dv = (sp.dt * sp.gravity).extend(0.0);
     for n in layer.iter_mut() {
         if n.w > 0.0 {
-            let v = if below_ground { Vec4::ZERO } else { *n / n.w + dv };
+            let v = if below_ground {
+                Vec4::ZERO
+            } else {
+                *n / n.w + dv
+            };
             *n = v.truncate().extend(n.w);
         }
     }
@@ -541,7 +584,13 @@ fn grid_update_layer(layer: &mut [Vec4], gz: i32, sp: &StepParams) {
 /// G2P for one chunk: gather velocity and APIC matrix, advect. Returns the input index of the
 /// first particle whose new position is not finite, if any.
 #[allow(clippy::needless_range_loop)] // i, j, k are node offsets as well as weight indices
-fn g2p_chunk(ps: &mut [Particle], grid: &[Vec4], lo: IVec3, dims: IVec3, sp: &StepParams) -> Option<u32> {
+fn g2p_chunk(
+    ps: &mut [Particle],
+    grid: &[Vec4],
+    lo: IVec3,
+    dims: IVec3,
+    sp: &StepParams,
+) -> Option<u32> {
     let mut diverged = None;
     let (nx, ny) = (dims.x as usize, dims.y as usize);
     for p in ps.iter_mut() {
@@ -589,7 +638,8 @@ fn polar_rotation_and_matrix(f: DMat3, warm: DQuat) -> (DQuat, DMat3) {
     for _ in 0..POLAR_MAX_ITERATIONS {
         let r = DMat3::from_quat(q);
         let num = r.x_axis.cross(f.x_axis) + r.y_axis.cross(f.y_axis) + r.z_axis.cross(f.z_axis);
-        let den = (r.x_axis.dot(f.x_axis) + r.y_axis.dot(f.y_axis) + r.z_axis.dot(f.z_axis)).abs() + 1e-9;
+        let den =
+            (r.x_axis.dot(f.x_axis) + r.y_axis.dot(f.y_axis) + r.z_axis.dot(f.z_axis)).abs() + 1e-9;
         let omega = num / den;
         let angle = omega.length();
         if angle.is_nan() || angle < POLAR_TOLERANCE {
@@ -618,7 +668,9 @@ mod tests {
 
     /// Deterministic pseudo-random numbers in [-1, 1] (no rand dependency in unit tests).
     fn lcg(state: &mut u64) -> f64 {
-        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
@@ -637,7 +689,10 @@ mod tests {
                 continue;
             }
             let r = DMat3::from_quat(polar_rotation(f, DQuat::IDENTITY));
-            let e = (r - newton_polar(f)).to_cols_array().iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let e = (r - newton_polar(f))
+                .to_cols_array()
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
             assert!(e < 2.0 * POLAR_TOLERANCE, "error {e}");
         }
     }
@@ -648,7 +703,13 @@ mod tests {
         let r = DMat3::from_quat(polar_rotation(f, DQuat::IDENTITY));
         assert!((r.determinant() - 1.0).abs() < 1e-9);
         // Maximises tr(RᵀF): no other rotation near it does better.
-        let score = |r: DMat3| (r.transpose() * f).to_cols_array().iter().step_by(4).sum::<f64>();
+        let score = |r: DMat3| {
+            (r.transpose() * f)
+                .to_cols_array()
+                .iter()
+                .step_by(4)
+                .sum::<f64>()
+        };
         for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
             for a in [-0.05, 0.05] {
                 assert!(score(DMat3::from_axis_angle(axis, a) * r) <= score(r) + 1e-12);
@@ -679,14 +740,22 @@ mod tests {
     fn particles_spanning_too_large_a_region_give_an_error_not_an_abort() {
         let far = [[0.0, 0.0, 0.0], [1e9, -1e9, 3e9]];
         let mut solver = MpmSolver::new(MpmConfig::default(), &far).unwrap();
-        assert!(matches!(solver.step_frame(), Err(MpmError::GridTooLarge { .. })));
+        assert!(matches!(
+            solver.step_frame(),
+            Err(MpmError::GridTooLarge { .. })
+        ));
     }
 
     #[test]
     fn nan_position_is_rejected_with_its_index() {
-        let e = MpmSolver::new(MpmConfig::default(), &[[0.0; 3], [0.0, f32::NAN, 0.0]]).err().unwrap();
+        let e = MpmSolver::new(MpmConfig::default(), &[[0.0; 3], [0.0, f32::NAN, 0.0]])
+            .err()
+            .unwrap();
         assert!(matches!(e, MpmError::NonFinitePosition { index: 1, .. }));
-        let cfg = MpmConfig { max_particles: 1, ..Default::default() };
+        let cfg = MpmConfig {
+            max_particles: 1,
+            ..Default::default()
+        };
         let e = MpmSolver::new(cfg, &[[0.0; 3], [0.0; 3]]).err().unwrap();
         assert_eq!(e, MpmError::TooManyParticles { count: 2, max: 1 });
     }

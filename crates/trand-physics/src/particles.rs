@@ -53,7 +53,9 @@ pub enum ParticleSource {
 impl ParticleSource {
     pub fn object(&self) -> u16 {
         match *self {
-            Self::Surfel { object, .. } | Self::MeshVertex { object, .. } | Self::Interior { object } => object,
+            Self::Surfel { object, .. }
+            | Self::MeshVertex { object, .. }
+            | Self::Interior { object } => object,
         }
     }
 }
@@ -76,10 +78,13 @@ impl ParticleSet {
 
     /// `(surfel index, particle index)` for every surfel particle.
     pub fn surfel_particles(&self) -> impl Iterator<Item = (u32, usize)> + '_ {
-        self.sources.iter().enumerate().filter_map(|(i, s)| match *s {
-            ParticleSource::Surfel { surfel, .. } => Some((surfel, i)),
-            _ => None,
-        })
+        self.sources
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| match *s {
+                ParticleSource::Surfel { surfel, .. } => Some((surfel, i)),
+                _ => None,
+            })
     }
 }
 
@@ -87,7 +92,11 @@ impl ParticleSet {
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ParticleError {
     #[error("object {id}: {centres} surfel centres but {indices} surfel indices")]
-    SurfelCountMismatch { id: u16, centres: usize, indices: usize },
+    SurfelCountMismatch {
+        id: u16,
+        centres: usize,
+        indices: usize,
+    },
     #[error("object {id}: surfel {surfel} has a non-finite centre")]
     NonFiniteSurfel { id: u16, surfel: u32 },
     #[error("the mesh has vertices but no labels (call Mesh::label_by_nearest first)")]
@@ -97,7 +106,11 @@ pub enum ParticleError {
 }
 
 /// Builds the particle set (see the module docs for the order and the fill).
-pub fn build_particles(objects: &[ObjectSurfels], mesh: &Mesh, fill: InteriorFill) -> Result<ParticleSet, ParticleError> {
+pub fn build_particles(
+    objects: &[ObjectSurfels],
+    mesh: &Mesh,
+    fill: InteriorFill,
+) -> Result<ParticleSet, ParticleError> {
     if !mesh.vertices.is_empty() && mesh.labels.is_none() {
         return Err(ParticleError::UnlabelledMesh);
     }
@@ -109,13 +122,27 @@ pub fn build_particles(objects: &[ObjectSurfels], mesh: &Mesh, fill: InteriorFil
     }
     for o in objects {
         if o.centres.len() != o.surfel_indices.len() {
-            return Err(ParticleError::SurfelCountMismatch { id: o.id, centres: o.centres.len(), indices: o.surfel_indices.len() });
+            return Err(ParticleError::SurfelCountMismatch {
+                id: o.id,
+                centres: o.centres.len(),
+                indices: o.surfel_indices.len(),
+            });
         }
-        if let Some(k) = o.centres.iter().position(|c| c.iter().any(|v| !v.is_finite())) {
-            return Err(ParticleError::NonFiniteSurfel { id: o.id, surfel: o.surfel_indices[k] });
+        if let Some(k) = o
+            .centres
+            .iter()
+            .position(|c| c.iter().any(|v| !v.is_finite()))
+        {
+            return Err(ParticleError::NonFiniteSurfel {
+                id: o.id,
+                surfel: o.surfel_indices[k],
+            });
         }
     }
-    let per_object: Vec<ParticleSet> = objects.par_iter().map(|o| object_particles(o, mesh, fill)).collect();
+    let per_object: Vec<ParticleSet> = objects
+        .par_iter()
+        .map(|o| object_particles(o, mesh, fill))
+        .collect();
     let mut out = ParticleSet::default();
     for p in per_object {
         out.positions.extend(p.positions);
@@ -128,19 +155,28 @@ fn object_particles(o: &ObjectSurfels, mesh: &Mesh, fill: InteriorFill) -> Parti
     let mut set = ParticleSet::default();
     for (c, &s) in o.centres.iter().zip(o.surfel_indices) {
         set.positions.push(*c);
-        set.sources.push(ParticleSource::Surfel { object: o.id, surfel: s });
+        set.sources.push(ParticleSource::Surfel {
+            object: o.id,
+            surfel: s,
+        });
     }
     if let Some(labels) = &mesh.labels {
         for (v, (p, &l)) in mesh.vertices.iter().zip(labels).enumerate() {
             if l == o.id {
                 set.positions.push(*p);
-                set.sources.push(ParticleSource::MeshVertex { object: o.id, vertex: v as u32 });
+                set.sources.push(ParticleSource::MeshVertex {
+                    object: o.id,
+                    vertex: v as u32,
+                });
             }
         }
     }
     if let InteriorFill::RayParity { spacing } = fill {
-        let tris: Vec<[[f32; 3]; 3]> =
-            mesh.faces_with_label(o.id).iter().map(|f| f.map(|v| mesh.vertices[v as usize])).collect();
+        let tris: Vec<[[f32; 3]; 3]> = mesh
+            .faces_with_label(o.id)
+            .iter()
+            .map(|f| f.map(|v| mesh.vertices[v as usize]))
+            .collect();
         for p in fill_by_ray_parity(&tris, spacing) {
             set.positions.push(p);
             set.sources.push(ParticleSource::Interior { object: o.id });
@@ -167,7 +203,10 @@ pub fn fill_by_ray_parity(tris: &[[[f32; 3]; 3]], spacing: f32) -> Vec<[f32; 3]>
     // keep columns off mesh edges and vertices, which lie on the TSDF voxel lattice and on its
     // diagonals (a column through an edge would hit both or neither of its triangles and break
     // the parity).
-    const EPS: [f64; 2] = [1e-3 * std::f64::consts::SQRT_2, 1e-3 * 1.732_050_807_568_877_2];
+    const EPS: [f64; 2] = [
+        1e-3 * std::f64::consts::SQRT_2,
+        1e-3 * 1.732_050_807_568_877_2,
+    ];
     let col = |i: usize, k: usize| lo[k] as f64 + (i as f64 + 0.5 + EPS[k]) * s;
     let mut crossings: Vec<Vec<f64>> = vec![Vec::new(); nx * ny];
     for t in tris {
@@ -179,7 +218,8 @@ pub fn fill_by_ray_parity(tris: &[[[f32; 3]; 3]], spacing: f32) -> Vec<[f32; 3]>
         let range = |k: usize| {
             let (mn, mx) = (a[k].min(b[k]).min(c[k]), a[k].max(b[k]).max(c[k]));
             let first = ((mn - lo[k] as f64) / s - 0.5 - EPS[k]).ceil().max(0.0) as usize;
-            let last = (((mx - lo[k] as f64) / s - 0.5 - EPS[k]).floor() as i64).min(n(k) as i64 - 1);
+            let last =
+                (((mx - lo[k] as f64) / s - 0.5 - EPS[k]).floor() as i64).min(n(k) as i64 - 1);
             (first, last)
         };
         let ((i0, i1), (j0, j1)) = (range(0), range(1));
@@ -221,26 +261,60 @@ mod tests {
 
     /// Closed axis-aligned box `[lo, hi]` as 12 outward triangles.
     fn box_mesh(lo: [f32; 3], hi: [f32; 3], label: u16) -> Mesh {
-        let v = |i: usize| [if i & 1 == 0 { lo[0] } else { hi[0] }, if i & 2 == 0 { lo[1] } else { hi[1] }, if i & 4 == 0 { lo[2] } else { hi[2] }];
-        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-        let faces = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
-        Mesh { vertices: (0..8).map(v).collect(), normals: vec![[0.0; 3]; 8], faces, labels: Some(vec![label; 8]) }
+        let v = |i: usize| {
+            [
+                if i & 1 == 0 { lo[0] } else { hi[0] },
+                if i & 2 == 0 { lo[1] } else { hi[1] },
+                if i & 4 == 0 { lo[2] } else { hi[2] },
+            ]
+        };
+        let quads = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        let faces = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        Mesh {
+            vertices: (0..8).map(v).collect(),
+            normals: vec![[0.0; 3]; 8],
+            faces,
+            labels: Some(vec![label; 8]),
+        }
     }
 
     #[test]
     fn closed_box_is_filled_on_the_grid_and_only_inside() {
         let m = box_mesh([0.0, 0.0, 0.0], [0.1, 0.2, 0.05], 3);
-        let tris: Vec<_> = m.faces.iter().map(|f| f.map(|v| m.vertices[v as usize])).collect();
+        let tris: Vec<_> = m
+            .faces
+            .iter()
+            .map(|f| f.map(|v| m.vertices[v as usize]))
+            .collect();
         let pts = fill_by_ray_parity(&tris, 0.01);
         assert_eq!(pts.len(), 10 * 20 * 5);
-        assert!(pts.iter().all(|p| p[0] > 0.0 && p[0] < 0.1 && p[1] > 0.0 && p[1] < 0.2 && p[2] > 0.0 && p[2] < 0.05));
+        assert!(pts.iter().all(|p| p[0] > 0.0
+            && p[0] < 0.1
+            && p[1] > 0.0
+            && p[1] < 0.2
+            && p[2] > 0.0
+            && p[2] < 0.05));
     }
 
     #[test]
     fn open_mesh_columns_are_not_filled() {
         let mut m = box_mesh([0.0; 3], [0.1; 3], 3);
         m.faces.truncate(2); // keep only the bottom: every column crosses once
-        let tris: Vec<_> = m.faces.iter().map(|f| f.map(|v| m.vertices[v as usize])).collect();
+        let tris: Vec<_> = m
+            .faces
+            .iter()
+            .map(|f| f.map(|v| m.vertices[v as usize]))
+            .collect();
         assert!(fill_by_ray_parity(&tris, 0.01).is_empty());
     }
 
@@ -250,33 +324,81 @@ mod tests {
         mesh.labels.as_mut().unwrap()[7] = 5;
         let (c1, i1) = ([[0.05f32, 0.05, 0.05]], [42u32]);
         let (c2, i2) = ([[1.0f32, 1.0, 1.0], [1.1, 1.0, 1.0]], [7u32, 8]);
-        let objects =
-            [ObjectSurfels { id: 5, centres: &c2, surfel_indices: &i2 }, ObjectSurfels { id: 2, centres: &c1, surfel_indices: &i1 }];
+        let objects = [
+            ObjectSurfels {
+                id: 5,
+                centres: &c2,
+                surfel_indices: &i2,
+            },
+            ObjectSurfels {
+                id: 2,
+                centres: &c1,
+                surfel_indices: &i1,
+            },
+        ];
         let set = build_particles(&objects, &mesh, InteriorFill::None).unwrap();
         use ParticleSource::*;
         assert_eq!(
             set.sources,
             vec![
-                Surfel { object: 5, surfel: 7 },
-                Surfel { object: 5, surfel: 8 },
-                MeshVertex { object: 5, vertex: 7 },
-                Surfel { object: 2, surfel: 42 },
+                Surfel {
+                    object: 5,
+                    surfel: 7
+                },
+                Surfel {
+                    object: 5,
+                    surfel: 8
+                },
+                MeshVertex {
+                    object: 5,
+                    vertex: 7
+                },
+                Surfel {
+                    object: 2,
+                    surfel: 42
+                },
             ]
             .into_iter()
-            .chain((0..7).map(|v| MeshVertex { object: 2, vertex: v }))
+            .chain((0..7).map(|v| MeshVertex {
+                object: 2,
+                vertex: v
+            }))
             .collect::<Vec<_>>()
         );
         assert_eq!(set.positions[3], c1[0]);
-        assert_eq!(set.surfel_particles().collect::<Vec<_>>(), vec![(7, 0), (8, 1), (42, 3)]);
+        assert_eq!(
+            set.surfel_particles().collect::<Vec<_>>(),
+            vec![(7, 0), (8, 1), (42, 3)]
+        );
         // Filled: after the surfel and the 8 vertices come the 10³ interior points.
         let closed = box_mesh([0.0; 3], [0.1; 3], 2);
-        let filled = build_particles(&objects[1..], &closed, InteriorFill::RayParity { spacing: 0.01 }).unwrap();
+        let filled = build_particles(
+            &objects[1..],
+            &closed,
+            InteriorFill::RayParity { spacing: 0.01 },
+        )
+        .unwrap();
         assert_eq!(filled.len(), 1 + 8 + 1000);
-        assert!(filled.sources[9..].iter().all(|s| *s == Interior { object: 2 }));
+        assert!(
+            filled.sources[9..]
+                .iter()
+                .all(|s| *s == Interior { object: 2 })
+        );
         // Object 2 without the top corner owns no top face any more: open, so no fill.
-        let open = build_particles(&objects[1..], &mesh, InteriorFill::RayParity { spacing: 0.01 }).unwrap();
+        let open = build_particles(
+            &objects[1..],
+            &mesh,
+            InteriorFill::RayParity { spacing: 0.01 },
+        )
+        .unwrap();
         assert!(!open.sources.iter().any(|s| matches!(s, Interior { .. })));
-        let unlabelled = Mesh { labels: None, ..mesh.clone() };
-        assert_eq!(build_particles(&objects, &unlabelled, InteriorFill::None), Err(ParticleError::UnlabelledMesh));
+        let unlabelled = Mesh {
+            labels: None,
+            ..mesh.clone()
+        };
+        assert_eq!(
+            build_particles(&objects, &unlabelled, InteriorFill::None),
+            Err(ParticleError::UnlabelledMesh)
+        );
     }
 }

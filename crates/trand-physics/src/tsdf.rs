@@ -68,7 +68,11 @@ impl TsdfSettings {
     pub fn tran_d(radius: f32) -> Self {
         let max_depth = 2.0 * radius;
         let voxel = max_depth / Self::VOXELS_PER_RANGE;
-        Self { voxel, trunc: Self::TRUNC_VOXELS * voxel, max_depth }
+        Self {
+            voxel,
+            trunc: Self::TRUNC_VOXELS * voxel,
+            max_depth,
+        }
     }
 }
 
@@ -88,14 +92,27 @@ impl TsdfVolume {
         if !(voxel.is_finite() && voxel > 0.0) {
             return Err(TsdfError::BadVoxel(voxel));
         }
-        let ok = (0..3).all(|k| bounds_min[k].is_finite() && bounds_max[k].is_finite() && bounds_max[k] > bounds_min[k]);
+        let ok = (0..3).all(|k| {
+            bounds_min[k].is_finite() && bounds_max[k].is_finite() && bounds_max[k] > bounds_min[k]
+        });
         if !ok {
-            return Err(TsdfError::BadBounds { min: bounds_min, max: bounds_max });
+            return Err(TsdfError::BadBounds {
+                min: bounds_min,
+                max: bounds_max,
+            });
         }
-        let dims: [usize; 3] = std::array::from_fn(|k| (((bounds_max[k] - bounds_min[k]) / voxel).ceil() as usize).max(2));
-        let voxels = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).unwrap_or(usize::MAX);
+        let dims: [usize; 3] = std::array::from_fn(|k| {
+            (((bounds_max[k] - bounds_min[k]) / voxel).ceil() as usize).max(2)
+        });
+        let voxels = dims
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .unwrap_or(usize::MAX);
         if voxels > MAX_VOXELS {
-            return Err(TsdfError::TooManyVoxels { voxels, max: MAX_VOXELS });
+            return Err(TsdfError::TooManyVoxels {
+                voxels,
+                max: MAX_VOXELS,
+            });
         }
         Ok(Self {
             origin: DVec3::from_array(bounds_min.map(f64::from)),
@@ -131,10 +148,20 @@ impl TsdfVolume {
     }
 
     /// Fuses one depth map (see the module docs for the update rule and depth convention).
-    pub fn integrate(&mut self, camera: &Camera, depth: &[f32], trunc: f32, max_depth: f32) -> Result<(), TsdfError> {
+    pub fn integrate(
+        &mut self,
+        camera: &Camera,
+        depth: &[f32],
+        trunc: f32,
+        max_depth: f32,
+    ) -> Result<(), TsdfError> {
         let k = camera.intrinsics;
         if depth.len() != k.num_pixels() {
-            return Err(TsdfError::DepthSize { got: depth.len(), width: k.width, height: k.height });
+            return Err(TsdfError::DepthSize {
+                got: depth.len(),
+                width: k.width,
+                height: k.height,
+            });
         }
         if !(trunc.is_finite() && trunc > 0.0 && max_depth.is_finite() && max_depth > 0.0) {
             return Err(TsdfError::BadTruncation { trunc, max_depth });
@@ -143,8 +170,11 @@ impl TsdfVolume {
         let [nx, ny, _] = self.dims;
         let (origin, voxel) = (self.origin, self.voxel);
         let (w, h) = (k.width as usize, k.height as usize);
-        self.tsdf.par_chunks_mut(nx * ny).zip(self.weight.par_chunks_mut(nx * ny)).enumerate().for_each(
-            |(kz, (tsdf, weight))| {
+        self.tsdf
+            .par_chunks_mut(nx * ny)
+            .zip(self.weight.par_chunks_mut(nx * ny))
+            .enumerate()
+            .for_each(|(kz, (tsdf, weight))| {
                 for jy in 0..ny {
                     // p_cam is affine in the voxel index: start of the row, then one step per x.
                     let p0 = origin + (DVec3::new(0.0, jy as f64, kz as f64) + 0.5) * voxel;
@@ -175,8 +205,7 @@ impl TsdfVolume {
                         weight[n] = wv + 1.0;
                     }
                 }
-            },
-        );
+            });
         Ok(())
     }
 
@@ -193,7 +222,13 @@ impl TsdfVolume {
         let [nx, ny, nz] = self.dims;
         let shape = RuntimeShape::<u32, 3>::new([nx as u32, ny as u32, nz as u32]);
         let mut buf = SurfaceNetsBuffer::default();
-        surface_nets(&self.tsdf, &shape, [0; 3], [nx as u32 - 1, ny as u32 - 1, nz as u32 - 1], &mut buf);
+        surface_nets(
+            &self.tsdf,
+            &shape,
+            [0; 3],
+            [nx as u32 - 1, ny as u32 - 1, nz as u32 - 1],
+            &mut buf,
+        );
         // A vertex sits in the cell with min corner `surface_points[i]`; keep it only when all
         // 8 corner voxels were observed.
         let observed = |c: [u32; 3]| {
@@ -207,12 +242,21 @@ impl TsdfVolume {
             vertices: buf
                 .positions
                 .iter()
-                .map(|p| (self.origin + (DVec3::from_array(p.map(f64::from)) + 0.5) * self.voxel).as_vec3().to_array())
+                .map(|p| {
+                    (self.origin + (DVec3::from_array(p.map(f64::from)) + 0.5) * self.voxel)
+                        .as_vec3()
+                        .to_array()
+                })
                 .collect(),
             normals: buf
                 .normals
                 .iter()
-                .map(|n| glam::Vec3::from_array(*n).try_normalize().unwrap_or(glam::Vec3::Z).to_array())
+                .map(|n| {
+                    glam::Vec3::from_array(*n)
+                        .try_normalize()
+                        .unwrap_or(glam::Vec3::Z)
+                        .to_array()
+                })
                 .collect(),
             faces: buf
                 .indices

@@ -13,13 +13,24 @@ use trand_core::{Camera, Intrinsics};
 /// horizontal plane through `center`), `n_azimuth` cameras at distance `radius`, evenly spaced
 /// in azimuth starting at +x, looking at `center` with world +z as image up; then one camera at
 /// `center − radius·ẑ` looking up along +z ([`below_view`]).
-pub fn ring_views(center: DVec3, radius: f64, elevations: &[f64], n_azimuth: usize, intrinsics: Intrinsics) -> Vec<Camera> {
+pub fn ring_views(
+    center: DVec3,
+    radius: f64,
+    elevations: &[f64],
+    n_azimuth: usize,
+    intrinsics: Intrinsics,
+) -> Vec<Camera> {
     let mut cams = Vec::with_capacity(elevations.len() * n_azimuth + 1);
     for &el in elevations {
         for a in 0..n_azimuth {
             let az = std::f64::consts::TAU * a as f64 / n_azimuth as f64;
             let dir = DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
-            cams.push(Camera::look_at(intrinsics, center + radius * dir, center, DVec3::Z));
+            cams.push(Camera::look_at(
+                intrinsics,
+                center + radius * dir,
+                center,
+                DVec3::Z,
+            ));
         }
     }
     cams.push(below_view(center, radius, intrinsics));
@@ -54,7 +65,10 @@ pub fn focus_point(cameras: &[Camera]) -> Option<DVec3> {
 /// the fusion depth range (2·radius) and voxel size (2·radius / 256) follow.
 pub fn scene_radius(cameras: &[Camera]) -> Option<f64> {
     let f = focus_point(cameras)?;
-    cameras.iter().map(|c| (c.center() - f).length()).min_by(f64::total_cmp)
+    cameras
+        .iter()
+        .map(|c| (c.center() - f).length())
+        .min_by(f64::total_cmp)
 }
 
 #[cfg(test)]

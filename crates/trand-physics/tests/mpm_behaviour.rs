@@ -10,7 +10,11 @@ fn block(lo: [f32; 3], hi: [f32; 3], h: f32) -> Vec<[f32; 3]> {
     for k in 0..n[2] {
         for j in 0..n[1] {
             for i in 0..n[0] {
-                out.push([lo[0] + (i as f32 + 0.5) * h, lo[1] + (j as f32 + 0.5) * h, lo[2] + (k as f32 + 0.5) * h]);
+                out.push([
+                    lo[0] + (i as f32 + 0.5) * h,
+                    lo[1] + (j as f32 + 0.5) * h,
+                    lo[2] + (k as f32 + 0.5) * h,
+                ]);
             }
         }
     }
@@ -39,12 +43,17 @@ fn mean(ps: &[[f32; 3]]) -> [f64; 3] {
 }
 
 fn max_speed(vs: &[[f32; 3]]) -> f32 {
-    vs.iter().map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()).fold(0.0, f32::max)
+    vs.iter()
+        .map(|v| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt())
+        .fold(0.0, f32::max)
 }
 
 #[test]
 fn free_fall_follows_the_ballistic_parabola() {
-    let cfg = MpmConfig { ground: Ground::None, ..MpmConfig::default() };
+    let cfg = MpmConfig {
+        ground: Ground::None,
+        ..MpmConfig::default()
+    };
     let h = cfg.dx / 2.0;
     let x0 = block([0.4, 0.4, 1.0], [0.5, 0.5, 1.06], h);
     let z0 = mean(&x0)[2];
@@ -59,13 +68,22 @@ fn free_fall_follows_the_ballistic_parabola() {
     let discrete = z0 - g * dt * dt * n * (n + 1.0) / 2.0;
     let analytic = z0 - 0.5 * g * t * t;
     assert!((z - discrete).abs() < 2e-5, "z {z} vs discrete {discrete}");
-    assert!((z - analytic).abs() < 0.5 * g * t * dt + 2e-5, "z {z} vs analytic {analytic}");
+    assert!(
+        (z - analytic).abs() < 0.5 * g * t * dt + 2e-5,
+        "z {z} vs analytic {analytic}"
+    );
     // A uniform translation does not deform the block.
     for f in solver.deformation_gradients() {
-        assert!((f - glam::Mat3::IDENTITY).abs_diff_eq(glam::Mat3::ZERO, 1e-4), "{f:?}");
+        assert!(
+            (f - glam::Mat3::IDENTITY).abs_diff_eq(glam::Mat3::ZERO, 1e-4),
+            "{f:?}"
+        );
     }
     let v = solver.velocities();
-    assert!(v.iter().all(|v| (v[2] as f64 + g * t).abs() < 1e-3 && v[0].abs() < 1e-4 && v[1].abs() < 1e-4));
+    assert!(
+        v.iter()
+            .all(|v| (v[2] as f64 + g * t).abs() < 1e-3 && v[0].abs() < 1e-4 && v[1].abs() < 1e-4)
+    );
 }
 
 #[test]
@@ -77,9 +95,20 @@ fn block_resting_on_the_floor_stays_put() {
     solver.run(100, |_, _| {}).unwrap(); // 1000 substeps, 0.4 s
     let x = solver.positions();
     let (c0, c) = (mean(&x0), mean(&x));
-    assert!((c[0] - c0[0]).abs() < 1e-3 && (c[1] - c0[1]).abs() < 1e-3, "horizontal drift {c0:?} -> {c:?}");
-    assert!((c[2] - c0[2]).abs() < 3e-3, "vertical drift {} -> {}", c0[2], c[2]);
-    assert!(x.iter().all(|p| p[2] > -0.01 && p[2] < 0.07), "a particle left the block");
+    assert!(
+        (c[0] - c0[0]).abs() < 1e-3 && (c[1] - c0[1]).abs() < 1e-3,
+        "horizontal drift {c0:?} -> {c:?}"
+    );
+    assert!(
+        (c[2] - c0[2]).abs() < 3e-3,
+        "vertical drift {} -> {}",
+        c0[2],
+        c[2]
+    );
+    assert!(
+        x.iter().all(|p| p[2] > -0.01 && p[2] < 0.07),
+        "a particle left the block"
+    );
     let v = max_speed(&solver.velocities());
     assert!(v < 0.02, "still moving at {v} m/s");
 }
@@ -103,13 +132,20 @@ fn block_whose_support_was_removed_falls_to_the_floor() {
             // 0.16 s: still falling freely (contact starts after ~0.2 s).
             let c = mean(&x)[2];
             let t = 0.004 * (frame + 1) as f64;
-            assert!((c - (0.13 - 0.5 * 4.9 * t * t)).abs() < 2e-3, "frame {frame}: centroid {c}");
+            assert!(
+                (c - (0.13 - 0.5 * 4.9 * t * t)).abs() < 2e-3,
+                "frame {frame}: centroid {c}"
+            );
         }
     }
     let x = solver.positions();
     assert!(lowest < 0.01, "never reached the floor (lowest {lowest})");
     assert!(lowest > -0.02, "went through the floor ({lowest})");
-    assert!(mean(&x)[2] < 0.08, "centroid {} still near the start 0.13", mean(&x)[2]);
+    assert!(
+        mean(&x)[2] < 0.08,
+        "centroid {} still near the start 0.13",
+        mean(&x)[2]
+    );
 }
 
 #[test]
@@ -120,7 +156,10 @@ fn results_are_bit_identical_for_one_and_many_threads() {
     x0.extend(block([0.47, 0.44, 0.12], [0.55, 0.52, 0.16], h));
     assert!(x0.len() > 3 * trand_physics::mpm::CHUNK);
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let mut s = MpmSolver::new(MpmConfig::default(), &x0).unwrap();
             s.run(8, |_, _| {}).unwrap();
@@ -131,9 +170,26 @@ fn results_are_bit_identical_for_one_and_many_threads() {
     for threads in [2, 3, 4] {
         let many = run(threads);
         let bits = |v: &[[f32; 3]]| v.iter().flatten().map(|f| f.to_bits()).collect::<Vec<_>>();
-        assert_eq!(bits(&one.0), bits(&many.0), "positions differ with {threads} threads");
-        assert_eq!(bits(&one.1), bits(&many.1), "velocities differ with {threads} threads");
-        let qbits = |q: &[glam::Quat]| q.iter().flat_map(|q| q.to_array()).map(f32::to_bits).collect::<Vec<_>>();
-        assert_eq!(qbits(&one.2), qbits(&many.2), "rotations differ with {threads} threads");
+        assert_eq!(
+            bits(&one.0),
+            bits(&many.0),
+            "positions differ with {threads} threads"
+        );
+        assert_eq!(
+            bits(&one.1),
+            bits(&many.1),
+            "velocities differ with {threads} threads"
+        );
+        let qbits = |q: &[glam::Quat]| {
+            q.iter()
+                .flat_map(|q| q.to_array())
+                .map(f32::to_bits)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(
+            qbits(&one.2),
+            qbits(&many.2),
+            "rotations differ with {threads} threads"
+        );
     }
 }

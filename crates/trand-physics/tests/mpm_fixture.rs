@@ -25,7 +25,9 @@ fn mean_displacement(a: &[[f32; 3]], b: &[[f32; 3]]) -> [f64; 3] {
 }
 
 fn z_range(a: &[[f32; 3]]) -> (f32, f32) {
-    a.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[2]), hi.max(p[2])))
+    a.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+        (lo.min(p[2]), hi.max(p[2]))
+    })
 }
 
 #[test]
@@ -38,13 +40,26 @@ fn fixture_bodies_land_where_the_taichi_engine_puts_them() {
     for (name, rows) in [("A", BODY_A), ("B", BODY_B)] {
         let ours = mean_displacement(&input[rows.clone()], &out[rows.clone()]);
         let theirs = mean_displacement(&input[rows.clone()], &reference[rows.clone()]);
-        let (zr, zt) = (z_range(&out[rows.clone()]), z_range(&reference[rows.clone()]));
-        eprintln!("body {name}: mean displacement ours {ours:?} taichi {theirs:?}; z range ours {zr:?} taichi {zt:?}");
+        let (zr, zt) = (
+            z_range(&out[rows.clone()]),
+            z_range(&reference[rows.clone()]),
+        );
+        eprintln!(
+            "body {name}: mean displacement ours {ours:?} taichi {theirs:?}; z range ours {zr:?} taichi {zt:?}"
+        );
         // Measured agreement is ~1e-7 m (float order differs); the bounds leave room for other
         // platforms' rounding while catching any real change of the physics.
         for k in 0..3 {
-            assert!((ours[k] - theirs[k]).abs() < 5e-4, "body {name} axis {k}: {} vs {}", ours[k], theirs[k]);
+            assert!(
+                (ours[k] - theirs[k]).abs() < 5e-4,
+                "body {name} axis {k}: {} vs {}",
+                ours[k],
+                theirs[k]
+            );
         }
-        assert!((zr.0 - zt.0).abs() < 2e-3 && (zr.1 - zt.1).abs() < 2e-3, "body {name} z range {zr:?} vs {zt:?}");
+        assert!(
+            (zr.0 - zt.0).abs() < 2e-3 && (zr.1 - zt.1).abs() < 2e-3,
+            "body {name} z range {zr:?} vs {zt:?}"
+        );
     }
 }

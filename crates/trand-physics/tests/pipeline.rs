@@ -3,7 +3,10 @@
 
 use glam::{DVec3, Vec3};
 use trand_core::Intrinsics;
-use trand_physics::{InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, ParticleSource, TsdfVolume, build_particles, ring_views};
+use trand_physics::{
+    InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, ParticleSource, TsdfVolume, build_particles,
+    ring_views,
+};
 
 #[test]
 fn ball_from_depth_maps_becomes_filled_particles_that_rest_on_the_floor() {
@@ -20,7 +23,8 @@ fn ball_from_depth_maps_becomes_filled_particles_that_rest_on_the_floor() {
                 let oc = o - c;
                 let (b, q) = (oc.dot(d), oc.length_squared() - r * r);
                 if b * b - q >= 0.0 {
-                    depth[(j * k.width + i) as usize] = ((-b - (b * b - q).sqrt()) * d.dot(fwd)) as f32;
+                    depth[(j * k.width + i) as usize] =
+                        ((-b - (b * b - q).sqrt()) * d.dot(fwd)) as f32;
                 }
             }
         }
@@ -30,20 +34,43 @@ fn ball_from_depth_maps_becomes_filled_particles_that_rest_on_the_floor() {
     // "Surfels": points on the ball's surface, object id 4.
     let surfels: Vec<[f32; 3]> = (0..200)
         .map(|i| {
-            let (t, p) = (i as f64 * 2.399963, (1.0 - 2.0 * (i as f64 + 0.5) / 200.0).acos());
-            (c + r * DVec3::new(p.sin() * t.cos(), p.sin() * t.sin(), p.cos())).as_vec3().to_array()
+            let (t, p) = (
+                i as f64 * 2.399963,
+                (1.0 - 2.0 * (i as f64 + 0.5) / 200.0).acos(),
+            );
+            (c + r * DVec3::new(p.sin() * t.cos(), p.sin() * t.sin(), p.cos()))
+                .as_vec3()
+                .to_array()
         })
         .collect();
     let indices: Vec<u32> = (1000..1200).collect();
-    mesh.label_by_nearest(&surfels, &vec![4; surfels.len()]).unwrap();
+    mesh.label_by_nearest(&surfels, &vec![4; surfels.len()])
+        .unwrap();
     let spacing = 1.0 / 96.0;
-    let objects = [ObjectSurfels { id: 4, centres: &surfels, surfel_indices: &indices }];
+    let objects = [ObjectSurfels {
+        id: 4,
+        centres: &surfels,
+        surfel_indices: &indices,
+    }];
     let set = build_particles(&objects, &mesh, InteriorFill::RayParity { spacing }).unwrap();
-    let interior: Vec<[f32; 3]> =
-        set.positions.iter().zip(&set.sources).filter(|(_, s)| matches!(s, ParticleSource::Interior { .. })).map(|(p, _)| *p).collect();
+    let interior: Vec<[f32; 3]> = set
+        .positions
+        .iter()
+        .zip(&set.sources)
+        .filter(|(_, s)| matches!(s, ParticleSource::Interior { .. }))
+        .map(|(p, _)| *p)
+        .collect();
     let expected = 4.0 / 3.0 * std::f64::consts::PI * r.powi(3) / (spacing as f64).powi(3);
-    assert!((interior.len() as f64 - expected).abs() < 0.15 * expected, "{} interior points, ~{expected:.0} expected", interior.len());
-    assert!(interior.iter().all(|p| (Vec3::from_array(*p) - c.as_vec3()).length() < r as f32 + voxel));
+    assert!(
+        (interior.len() as f64 - expected).abs() < 0.15 * expected,
+        "{} interior points, ~{expected:.0} expected",
+        interior.len()
+    );
+    assert!(
+        interior
+            .iter()
+            .all(|p| (Vec3::from_array(*p) - c.as_vec3()).length() < r as f32 + voxel)
+    );
     assert_eq!(set.len(), 200 + mesh.vertices.len() + interior.len());
 
     let mut mpm = MpmSolver::new(MpmConfig::default(), &set.positions).unwrap();

@@ -37,19 +37,34 @@ fn fused_sphere_mesh_lies_on_the_sphere() {
     let cams = ring_views(c, 0.5, &[-0.5, 0.3, 1.0], 8, k);
     let mut vol = TsdfVolume::new([-0.15, -0.15, -0.05], [0.15, 0.15, 0.25], voxel).unwrap();
     for cam in &cams {
-        vol.integrate(cam, &render_depth(cam, sphere_hit(c, r)), 5.0 * voxel, 1.0).unwrap();
+        vol.integrate(cam, &render_depth(cam, sphere_hit(c, r)), 5.0 * voxel, 1.0)
+            .unwrap();
     }
     let mesh = vol.extract_mesh();
-    assert!(mesh.vertices.len() > 2000, "only {} vertices", mesh.vertices.len());
-    assert_eq!(mesh.triangle_components().1.len(), 1, "the sphere is one piece");
+    assert!(
+        mesh.vertices.len() > 2000,
+        "only {} vertices",
+        mesh.vertices.len()
+    );
+    assert_eq!(
+        mesh.triangle_components().1.len(),
+        1,
+        "the sphere is one piece"
+    );
     let cf = c.as_vec3();
     let mut worst = 0.0f32;
     for (v, n) in mesh.vertices.iter().zip(&mesh.normals) {
         let p = Vec3::from_array(*v) - cf;
         worst = worst.max((p.length() - r as f32).abs());
-        assert!(Vec3::from_array(*n).dot(p.normalize()) > 0.8, "normal {n:?} at {v:?} does not point out");
+        assert!(
+            Vec3::from_array(*n).dot(p.normalize()) > 0.8,
+            "normal {n:?} at {v:?} does not point out"
+        );
     }
-    assert!(worst < voxel, "a vertex is {worst} m off the sphere (voxel {voxel})");
+    assert!(
+        worst < voxel,
+        "a vertex is {worst} m off the sphere (voxel {voxel})"
+    );
     // Faces are counter-clockwise seen from outside.
     let outward = mesh
         .faces
@@ -59,7 +74,11 @@ fn fused_sphere_mesh_lies_on_the_sphere() {
             (b - a).cross(cc - a).dot(a - cf) > 0.0
         })
         .count();
-    assert!(outward as f64 > 0.99 * mesh.faces.len() as f64, "{outward} of {} faces wound outward", mesh.faces.len());
+    assert!(
+        outward as f64 > 0.99 * mesh.faces.len() as f64,
+        "{outward} of {} faces wound outward",
+        mesh.faces.len()
+    );
 }
 
 #[test]
@@ -70,11 +89,16 @@ fn fused_plane_mesh_is_flat() {
     let plane = |o: DVec3, d: DVec3| (d.z.abs() > 1e-9).then(|| -o.z / d.z).filter(|t| *t > 0.0);
     let mut vol = TsdfVolume::new([-0.08, -0.08, -0.04], [0.08, 0.08, 0.04], voxel).unwrap();
     for cam in cams.iter().filter(|c| c.center().z > 0.0) {
-        vol.integrate(cam, &render_depth(cam, plane), 5.0 * voxel, 2.0).unwrap();
+        vol.integrate(cam, &render_depth(cam, plane), 5.0 * voxel, 2.0)
+            .unwrap();
     }
     let mesh = vol.extract_mesh();
     assert!(mesh.faces.len() > 1000, "{} faces", mesh.faces.len());
-    let worst = mesh.vertices.iter().map(|v| v[2].abs()).fold(0.0f32, f32::max);
+    let worst = mesh
+        .vertices
+        .iter()
+        .map(|v| v[2].abs())
+        .fold(0.0f32, f32::max);
     assert!(worst < 0.5 * voxel, "a vertex is {worst} m off the plane");
     assert!(mesh.normals.iter().all(|n| n[2] > 0.95), "normals point up");
 }
@@ -85,7 +109,8 @@ fn empty_depth_gives_an_empty_mesh() {
     let cams = ring_views(DVec3::ZERO, 0.5, &[0.5], 4, k);
     let mut vol = TsdfVolume::new([-0.1; 3], [0.1; 3], 0.01).unwrap();
     for cam in &cams {
-        vol.integrate(cam, &vec![0.0; k.num_pixels()], 0.05, 1.0).unwrap();
+        vol.integrate(cam, &vec![0.0; k.num_pixels()], 0.05, 1.0)
+            .unwrap();
     }
     let mesh = vol.extract_mesh();
     assert!(mesh.is_empty() && mesh.vertices.is_empty());
@@ -107,18 +132,23 @@ fn fusion_is_identical_for_one_and_many_threads_and_ignores_invalid_depth() {
     let k = Intrinsics::centered(120.0, 80, 80);
     let cams = ring_views(c, 0.4, &[0.5], 5, k);
     let fuse = |threads: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
-            let mut vol = TsdfVolume::new([-0.06, -0.06, -0.01], [0.06, 0.06, 0.11], 0.004).unwrap();
-            for cam in &cams {
-                let mut depth = render_depth(cam, sphere_hit(c, r));
-                // Garbage pixels (NaN, negative, infinite) count as "no depth".
-                depth[0] = f32::NAN;
-                depth[1] = -1.0;
-                depth[2] = f32::INFINITY;
-                vol.integrate(cam, &depth, 0.02, 1.0).unwrap();
-            }
-            vol
-        })
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut vol =
+                    TsdfVolume::new([-0.06, -0.06, -0.01], [0.06, 0.06, 0.11], 0.004).unwrap();
+                for cam in &cams {
+                    let mut depth = render_depth(cam, sphere_hit(c, r));
+                    // Garbage pixels (NaN, negative, infinite) count as "no depth".
+                    depth[0] = f32::NAN;
+                    depth[1] = -1.0;
+                    depth[2] = f32::INFINITY;
+                    vol.integrate(cam, &depth, 0.02, 1.0).unwrap();
+                }
+                vol
+            })
     };
     let (one, many) = (fuse(1), fuse(3));
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();

@@ -16,9 +16,9 @@ pub mod targets;
 pub mod trainer;
 pub mod update;
 
-pub use reconstruct::{reconstruct, InitMode, Method, ReconstructOptions, Reconstruction};
+pub use reconstruct::{InitMode, Method, ReconstructOptions, Reconstruction, reconstruct};
 pub use targets::{Supervision, TrainView};
-pub use trainer::{Trainer, StepReport};
+pub use trainer::{StepReport, Trainer};
 
 /// Errors of the pipeline, each naming what failed.
 #[derive(Debug, thiserror::Error)]

@@ -17,11 +17,14 @@ use std::path::Path;
 
 use rayon::prelude::*;
 use trand_core::Surfels;
-use trand_io::{write_depth_png_mm, write_npy_f32, write_rgb_png, write_surfels_ply, DepthMap, Image, RunDir, View};
-use trand_render::{render, Maps, RenderSettings};
+use trand_io::{
+    DepthMap, Image, RunDir, View, write_depth_png_mm, write_npy_f32, write_rgb_png,
+    write_surfels_ply,
+};
+use trand_render::{Maps, RenderSettings, render};
 
-use crate::targets::palette;
 use crate::Result;
+use crate::targets::palette;
 
 /// Rendered outputs of one test view.
 pub struct TestRender {
@@ -35,15 +38,27 @@ pub struct TestRender {
 pub fn depth_clamp(views: &[View]) -> f32 {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
     match trand_train::init::focus_point(&cams) {
-        Ok(f) => (2.0 * cams.iter().map(|c| (c.center() - f).length()).fold(f64::INFINITY, f64::min)) as f32,
+        Ok(f) => {
+            (2.0 * cams
+                .iter()
+                .map(|c| (c.center() - f).length())
+                .fold(f64::INFINITY, f64::min)) as f32
+        }
         Err(_) => f32::INFINITY,
     }
 }
 
 /// Renders the median depth and the object map of every view (full resolution).
-pub fn render_views(surfels: &Surfels, views: &[View], settings: &RenderSettings) -> Result<Vec<TestRender>> {
+pub fn render_views(
+    surfels: &Surfels,
+    views: &[View],
+    settings: &RenderSettings,
+) -> Result<Vec<TestRender>> {
     let clamp = depth_clamp(views);
-    let settings = RenderSettings { maps: Maps::RgbObjects, ..*settings };
+    let settings = RenderSettings {
+        maps: Maps::RgbObjects,
+        ..*settings
+    };
     views
         .iter()
         .map(|v| {
@@ -55,7 +70,11 @@ pub fn render_views(surfels: &Surfels, views: &[View], settings: &RenderSettings
                 .objects
                 .par_chunks(k)
                 .flat_map_iter(|p| {
-                    let (c, &m) = p.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).expect("K ≥ 1");
+                    let (c, &m) = p
+                        .iter()
+                        .enumerate()
+                        .max_by(|a, b| a.1.total_cmp(b.1))
+                        .expect("K ≥ 1");
                     let col = if m > 0.5 { palette(c) } else { [0.0; 3] };
                     col.map(|x| (x * 255.0).round() as u8)
                 })

@@ -14,13 +14,13 @@ use std::time::Instant;
 
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
-use trand_core::{math::softmax, Surfels};
-use trand_io::{select_train_views, Sequence, ViewCount};
+use trand_core::{Surfels, math::softmax};
+use trand_io::{Sequence, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
-use trand_train::init::{random_init, slab_points, surfels_from_points, InitConfig, SlabBox};
+use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
 use crate::targets::{self, Supervision, TrainView};
-use crate::trainer::{camera_extent, StepReport, Trainer};
+use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
 
 /// Which of the paper's methods to run.
@@ -102,7 +102,9 @@ fn view_count(n: u32) -> Result<ViewCount> {
         3 => Ok(ViewCount::Three),
         6 => Ok(ViewCount::Six),
         12 => Ok(ViewCount::Twelve),
-        _ => Err(PipelineError::Invalid(format!("--views must be 3, 6 or 12, not {n}"))),
+        _ => Err(PipelineError::Invalid(format!(
+            "--views must be 3, 6 or 12, not {n}"
+        ))),
     }
 }
 
@@ -110,22 +112,41 @@ fn view_count(n: u32) -> Result<ViewCount> {
 pub type Channels = Vec<(u16, usize)>;
 
 /// Builds the training views of t = 0.
-pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<(Vec<TrainView>, Channels)> {
+pub fn train_views(
+    seq: &Sequence,
+    opts: &ReconstructOptions,
+) -> Result<(Vec<TrainView>, Channels)> {
     let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
     if chosen.is_empty() {
-        return Err(PipelineError::Invalid(format!("{}: no training views at t=0", seq.root.display())));
+        return Err(PipelineError::Invalid(format!(
+            "{}: no training views at t=0",
+            seq.root.display()
+        )));
     }
     let channels = targets::channel_map(&seq.object_ids, opts.num_objects)?;
     let sup = opts.method.supervision();
     let views = chosen
         .iter()
-        .map(|v| targets::build(v, &channels, opts.num_objects, opts.train.background, sup, opts.downsample))
+        .map(|v| {
+            targets::build(
+                v,
+                &channels,
+                opts.num_objects,
+                opts.train.background,
+                sup,
+                opts.downsample,
+            )
+        })
         .collect::<Result<Vec<_>>>()?;
     Ok((views, channels))
 }
 
 /// Slab samples carved by the masks (see the module docs).
-fn visual_hull_points(views: &[TrainView], cfg: &InitConfig, target: usize) -> Result<Vec<[f32; 3]>> {
+fn visual_hull_points(
+    views: &[TrainView],
+    cfg: &InitConfig,
+    target: usize,
+) -> Result<Vec<[f32; 3]>> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
     let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
     // Tall enough for stacked glassware: half the box's half-width.
@@ -134,7 +155,10 @@ fn visual_hull_points(views: &[TrainView], cfg: &InitConfig, target: usize) -> R
     let inside = |p: [f32; 3]| {
         let mut seen = 0;
         for v in views {
-            let Some((x, y, _)) = v.camera.project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)) else {
+            let Some((x, y, _)) =
+                v.camera
+                    .project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            else {
                 continue;
             };
             let (xi, yi) = (x.round(), y.round());

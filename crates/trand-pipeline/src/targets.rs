@@ -72,7 +72,11 @@ pub fn channel_map(object_ids: &[u16], num_objects: usize) -> Result<Vec<(u16, u
             num_objects
         )));
     }
-    Ok(ids.into_iter().enumerate().map(|(k, id)| (id, k + 1)).collect())
+    Ok(ids
+        .into_iter()
+        .enumerate()
+        .map(|(k, id)| (id, k + 1))
+        .collect())
 }
 
 /// Builds the targets of one view.
@@ -84,9 +88,18 @@ pub fn build(
     supervision: Supervision,
     downsample: u32,
 ) -> Result<TrainView> {
-    let err = |what: String| PipelineError::View { view: view.name.clone(), what };
-    let rgb8 = view.rgb.as_ref().ok_or_else(|| err("no RGB image".into()))?;
-    let inst = view.instance.as_ref().ok_or_else(|| err("no instance mask".into()))?;
+    let err = |what: String| PipelineError::View {
+        view: view.name.clone(),
+        what,
+    };
+    let rgb8 = view
+        .rgb
+        .as_ref()
+        .ok_or_else(|| err("no RGB image".into()))?;
+    let inst = view
+        .instance
+        .as_ref()
+        .ok_or_else(|| err("no instance mask".into()))?;
     if !rgb8.same_size(inst) {
         return Err(err(format!(
             "mask is {}x{} but the image is {}x{}",
@@ -97,7 +110,9 @@ pub fn build(
     let (w0, h0) = (rgb8.width as usize, rgb8.height as usize);
     let (w, h) = (w0 / f, h0 / f);
     if w == 0 || h == 0 {
-        return Err(err(format!("downsampling {w0}x{h0} by {f} leaves no pixels")));
+        return Err(err(format!(
+            "downsampling {w0}x{h0} by {f} leaves no pixels"
+        )));
     }
     let mut lut = vec![usize::MAX; u16::MAX as usize + 1];
     lut[0] = 0;
@@ -123,10 +138,15 @@ pub fn build(
                     }
                 }
             }
-            let id = votes.iter().max_by_key(|v| (v.1, std::cmp::Reverse(v.0))).map_or(0, |v| v.0);
+            let id = votes
+                .iter()
+                .max_by_key(|v| (v.1, std::cmp::Reverse(v.0)))
+                .map_or(0, |v| v.0);
             // Whole-image supervision ignores the masks, so their ids need not be known objects.
             if supervision == Supervision::ObjectAware && lut[id as usize] == usize::MAX {
-                return Err(err(format!("instance id {id} is not one of the sequence's objects")));
+                return Err(err(format!(
+                    "instance id {id} is not one of the sequence's objects"
+                )));
             }
             let o = y * w + x;
             ids[o] = id;
@@ -135,9 +155,21 @@ pub fn build(
             }
         }
     }
-    let camera = Camera { intrinsics: view.camera.intrinsics.scaled(1.0 / f as f64), ..view.camera };
+    let camera = Camera {
+        intrinsics: view.camera.intrinsics.scaled(1.0 / f as f64),
+        ..view.camera
+    };
     if supervision == Supervision::FullImage {
-        return Ok(TrainView { name: view.name.clone(), camera, width: w, height: h, rgb, mask: Vec::new(), one_hot: Vec::new(), ids });
+        return Ok(TrainView {
+            name: view.name.clone(),
+            camera,
+            width: w,
+            height: h,
+            rgb,
+            mask: Vec::new(),
+            one_hot: Vec::new(),
+            ids,
+        });
     }
     let mut mask = vec![0.0f32; w * h * 3];
     let mut one_hot = vec![0.0f32; w * h * num_objects];
@@ -154,7 +186,16 @@ pub fn build(
             }
         }
     }
-    Ok(TrainView { name: view.name.clone(), camera, width: w, height: h, rgb, mask, one_hot, ids })
+    Ok(TrainView {
+        name: view.name.clone(),
+        camera,
+        width: w,
+        height: h,
+        rgb,
+        mask,
+        one_hot,
+        ids,
+    })
 }
 
 #[cfg(test)]
@@ -176,7 +217,12 @@ mod tests {
     #[test]
     fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
         let k = trand_core::Intrinsics::centered(10.0, 4, 2);
-        let cam = Camera::look_at(k, glam::DVec3::new(0.0, 0.0, 1.0), glam::DVec3::ZERO, glam::DVec3::Y);
+        let cam = Camera::look_at(
+            k,
+            glam::DVec3::new(0.0, 0.0, 1.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+        );
         let view = View {
             name: "v".into(),
             frame: 0,
@@ -185,18 +231,23 @@ mod tests {
             instance: trand_io::Image::from_vec(4, 2, 1, vec![0, 0, 3, 3, 0, 0, 3, 3]),
             depth: None,
         };
-        let t = build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
+        let t =
+            build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
         assert!(t.mask.is_empty() && t.one_hot.is_empty());
         assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, 1).is_err());
-        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 1).expect("id 3 is known");
+        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 1)
+            .expect("id 3 is known");
         assert_eq!(t.one_hot[2 * 15 + 1], 1.0);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
     }
 
     #[test]
     fn channel_map_rejects_too_many_objects() {
-        assert_eq!(channel_map(&[4, 2, 0, 9], 15).unwrap(), vec![(2, 1), (4, 2), (9, 3)]);
+        assert_eq!(
+            channel_map(&[4, 2, 0, 9], 15).unwrap(),
+            vec![(2, 1), (4, 2), (9, 3)]
+        );
         assert!(channel_map(&[1, 2, 3], 3).is_err());
     }
 }

@@ -14,13 +14,15 @@
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
 use trand_core::Surfels;
-use trand_render::{render, GeometryMaps, Maps, OutputGrads, RenderSettings};
+use trand_render::{GeometryMaps, Maps, OutputGrads, RenderSettings, render};
 use trand_train::config::TrainConfig;
-use trand_train::losses::{dice::dice, geometry, object::object_aware_loss, photometric::photometric};
-use trand_train::{densify_and_prune, reset_opacity, Adam, DensifyStats};
+use trand_train::losses::{
+    dice::dice, geometry, object::object_aware_loss, photometric::photometric,
+};
+use trand_train::{Adam, DensifyStats, densify_and_prune, reset_opacity};
 
-use crate::targets::{Supervision, TrainView};
 use crate::Result;
+use crate::targets::{Supervision, TrainView};
 
 /// What one iteration did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -56,16 +58,36 @@ pub struct Trainer<'a> {
 pub fn camera_extent(cameras: &[trand_core::Camera]) -> f32 {
     let centres: Vec<glam::DVec3> = cameras.iter().map(|c| c.center()).collect();
     let mean = centres.iter().copied().sum::<glam::DVec3>() / centres.len().max(1) as f64;
-    (1.1 * centres.iter().map(|c| (*c - mean).length()).fold(0.0, f64::max)) as f32
+    (1.1 * centres
+        .iter()
+        .map(|c| (*c - mean).length())
+        .fold(0.0, f64::max)) as f32
 }
 
 impl<'a> Trainer<'a> {
-    pub fn new(surfels: Surfels, cfg: TrainConfig, views: &'a [TrainView], extent: f32, supervision: Supervision) -> Self {
+    pub fn new(
+        surfels: Surfels,
+        cfg: TrainConfig,
+        views: &'a [TrainView],
+        extent: f32,
+        supervision: Supervision,
+    ) -> Self {
         let adam = Adam::new(&surfels, cfg.adam);
         let stats = DensifyStats::new(surfels.len());
         // Salted with "trand" in ASCII so the view order differs from the initialisation's stream.
         let rng = Pcg64::seed_from_u64(cfg.seed ^ 0x0074_7261_6e64);
-        Self { surfels, adam, stats, lr_extent: extent as f64, extent, cfg, views, supervision, rng, stack: Vec::new() }
+        Self {
+            surfels,
+            adam,
+            stats,
+            lr_extent: extent as f64,
+            extent,
+            cfg,
+            views,
+            supervision,
+            rng,
+            stack: Vec::new(),
+        }
     }
 
     fn next_view(&mut self) -> usize {
@@ -84,20 +106,29 @@ impl<'a> Trainer<'a> {
         let k = self.surfels.num_objects;
         let object_aware = self.supervision == Supervision::ObjectAware;
         let geo = &cfg.geometry_loss;
-        let geometry_on = geo.active.is_active(it) && (geo.lambda_normal > 0.0 || geo.lambda_dist > 0.0);
+        let geometry_on =
+            geo.active.is_active(it) && (geo.lambda_normal > 0.0 || geo.lambda_dist > 0.0);
         let settings = RenderSettings {
             background: cfg.background,
             near: cfg.near as f64,
             sh_degree: Some(cfg.sh_degree),
             maps: if object_aware { Maps::All } else { Maps::Rgb },
-            geometry: if geometry_on { GeometryMaps::Rendered } else { GeometryMaps::Skipped },
+            geometry: if geometry_on {
+                GeometryMaps::Rendered
+            } else {
+                GeometryMaps::Skipped
+            },
         };
         let out = render::<f32, _>(&self.surfels, &view.camera, &settings)?;
         let (w, h) = (view.width, view.height);
         let il = &cfg.image_loss;
         let lam = il.lambda_dssim as f32;
         let mut g = OutputGrads::<f32>::default();
-        let mut rep = StepReport { iteration: it, view: vi, ..Default::default() };
+        let mut rep = StepReport {
+            iteration: it,
+            view: vi,
+            ..Default::default()
+        };
 
         let rgb_w = if object_aware { il.rgb as f32 } else { 1.0 };
         let p = photometric(&out.rgb, &view.rgb, w, h, 3, lam);
@@ -117,12 +148,22 @@ impl<'a> Trainer<'a> {
         if geometry_on {
             let n = w * h;
             if geo.lambda_normal > 0.0 {
-                let normals: Vec<[f32; 3]> = out.normal.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+                let normals: Vec<[f32; 3]> = out
+                    .normal
+                    .chunks_exact(3)
+                    .map(|c| [c[0], c[1], c[2]])
+                    .collect();
                 let pin = geometry::Pinhole::from_intrinsics(&view.camera.intrinsics);
-                let nc = geometry::normal_consistency(&normals, &out.median, &out.alpha, &pin, w, h);
+                let nc =
+                    geometry::normal_consistency(&normals, &out.median, &out.alpha, &pin, w, h);
                 let lam_n = geo.lambda_normal as f32;
                 loss += lam_n * nc.value;
-                g.normal = Some(nc.grad_normal.iter().flat_map(|v| v.map(|x| x * lam_n)).collect());
+                g.normal = Some(
+                    nc.grad_normal
+                        .iter()
+                        .flat_map(|v| v.map(|x| x * lam_n))
+                        .collect(),
+                );
                 g.median = Some(nc.grad_depth.iter().map(|v| v * lam_n).collect());
             }
             if geo.lambda_dist > 0.0 {
@@ -142,7 +183,12 @@ impl<'a> Trainer<'a> {
         let mut gs = self.surfels.zeros_like();
         grads.params.write_into(&mut gs);
         if object_aware && cfg.object_loss.active.is_active(it) {
-            let ol = object_aware_loss(&self.surfels.means, &self.surfels.obj_logits, k, &cfg.object_loss.params);
+            let ol = object_aware_loss(
+                &self.surfels.means,
+                &self.surfels.obj_logits,
+                k,
+                &cfg.object_loss.params,
+            );
             let wgt = cfg.object_loss.weight as f32;
             rep.object = ol.value;
             rep.loss += wgt * ol.value;

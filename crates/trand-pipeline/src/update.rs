@@ -19,13 +19,14 @@
 use std::time::Instant;
 
 use glam::{DVec3, Quat};
-use trand_core::{math::softmax, Camera, Intrinsics, Surfels};
+use trand_core::{Camera, Intrinsics, Surfels, math::softmax};
 use trand_eval::{hungarian, iou};
 use trand_io::View;
 use trand_physics::{
-    below_view, build_particles, ring_views, InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume,
+    InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume, below_view,
+    build_particles, ring_views,
 };
-use trand_render::{render, GeometryMaps, Maps, RenderSettings};
+use trand_render::{GeometryMaps, Maps, RenderSettings, render};
 use trand_train::config::TrainConfig;
 
 use crate::targets::{self, Supervision};
@@ -110,9 +111,19 @@ impl SceneScale {
     pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
         let extent = crate::trainer::camera_extent(cameras);
         let radius = trand_physics::focus_point(cameras)
-            .map(|f| cameras.iter().map(|c| (c.center() - f).length()).sum::<f64>() / cameras.len().max(1) as f64)
+            .map(|f| {
+                cameras
+                    .iter()
+                    .map(|c| (c.center() - f).length())
+                    .sum::<f64>()
+                    / cameras.len().max(1) as f64
+            })
             .unwrap_or(0.5) as f32;
-        Self { extent, radius, downsample }
+        Self {
+            extent,
+            radius,
+            downsample,
+        }
     }
 }
 
@@ -173,23 +184,45 @@ pub fn detect(
     settings: &RenderSettings,
     centroid_weight: f64,
 ) -> Result<Vec<Match>> {
-    let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View { view: view.name.clone(), what: "no instance mask".into() })?;
-    let out = render::<f32, _>(surfels, &view.camera, &RenderSettings { maps: Maps::RgbObjects, ..*settings })?;
+    let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View {
+        view: view.name.clone(),
+        what: "no instance mask".into(),
+    })?;
+    let out = render::<f32, _>(
+        surfels,
+        &view.camera,
+        &RenderSettings {
+            maps: Maps::RgbObjects,
+            ..*settings
+        },
+    )?;
     if (out.width, out.height) != (inst.width, inst.height) {
         return Err(PipelineError::View {
             view: view.name.clone(),
-            what: format!("mask is {}x{} but the camera renders {}x{}", inst.width, inst.height, out.width, out.height),
+            what: format!(
+                "mask is {}x{} but the camera renders {}x{}",
+                inst.width, inst.height, out.width, out.height
+            ),
         });
     }
     let k = out.num_objects;
     let n = out.alpha.len();
     let rendered: Vec<Vec<bool>> = channels
         .iter()
-        .map(|&(_, c)| (0..n).map(|p| out.objects[p * k + c] > 0.5 * out.alpha[p].max(1e-6) && out.alpha[p] > 0.3).collect())
+        .map(|&(_, c)| {
+            (0..n)
+                .map(|p| {
+                    out.objects[p * k + c] > 0.5 * out.alpha[p].max(1e-6) && out.alpha[p] > 0.3
+                })
+                .collect()
+        })
         .collect();
     let new_ids: Vec<u16> = inst.ids().into_iter().filter(|&i| i != 0).collect();
     let new_masks: Vec<Vec<bool>> = new_ids.iter().map(|&i| inst.mask(i)).collect();
-    let ious: Vec<Vec<f64>> = rendered.iter().map(|r| new_masks.iter().map(|m| iou(r, m)).collect()).collect();
+    let ious: Vec<Vec<f64>> = rendered
+        .iter()
+        .map(|r| new_masks.iter().map(|m| iou(r, m)).collect())
+        .collect();
     let w = inst.width as usize;
     let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
     let centroid = |m: &[bool]| {
@@ -210,20 +243,36 @@ pub fn detect(
             row.iter()
                 .zip(&nc)
                 .map(|(v, b)| match (a, b) {
-                    (Some(a), Some(b)) => 1.0 - v + centroid_weight * ((a.0 - b.0).hypot(a.1 - b.1) / diag),
+                    (Some(a), Some(b)) => {
+                        1.0 - v + centroid_weight * ((a.0 - b.0).hypot(a.1 - b.1) / diag)
+                    }
                     // Not visible from the new view: the worst possible match.
                     _ => 2.0 + centroid_weight,
                 })
                 .collect()
         })
         .collect();
-    let assign = if new_ids.is_empty() { vec![None; channels.len()] } else { hungarian(&cost) };
+    let assign = if new_ids.is_empty() {
+        vec![None; channels.len()]
+    } else {
+        hungarian(&cost)
+    };
     Ok(channels
         .iter()
         .enumerate()
         .map(|(r, &(object_id, channel))| match assign[r] {
-            Some(c) => Match { object_id, channel, new_id: Some(new_ids[c]), iou: ious[r][c] },
-            None => Match { object_id, channel, new_id: None, iou: ious[r].iter().copied().fold(0.0, f64::max) },
+            Some(c) => Match {
+                object_id,
+                channel,
+                new_id: Some(new_ids[c]),
+                iou: ious[r][c],
+            },
+            None => Match {
+                object_id,
+                channel,
+                new_id: None,
+                iou: ious[r].iter().copied().fold(0.0, f64::max),
+            },
         })
         .collect())
 }
@@ -253,7 +302,11 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
     // Far enough that the whole footprint fits a 60°-wide view.
     let radius = (size * 1.2).max(0.3);
     let k = Intrinsics::centered(opts.virtual_focal, opts.virtual_width, opts.virtual_height);
-    let els: Vec<f64> = opts.ring_elevations_deg.iter().map(|d| d.to_radians()).collect();
+    let els: Vec<f64> = opts
+        .ring_elevations_deg
+        .iter()
+        .map(|d| d.to_radians())
+        .collect();
     let mut cams = ring_views(centre, radius, &els, opts.ring_azimuths, k);
     cams.push(below_view(DVec3::new(centre.x, centre.y, 0.0), radius, k));
     cams
@@ -280,17 +333,28 @@ pub fn simulate(
         }
     }
     let margin = 8.0 * ts.voxel + 0.01;
-    let lo = [lo[0] - margin, lo[1] - margin, (lo[2] - margin).max(-margin)];
+    let lo = [
+        lo[0] - margin,
+        lo[1] - margin,
+        (lo[2] - margin).max(-margin),
+    ];
     let hi = [hi[0] + margin, hi[1] + margin, hi[2] + margin];
-    let mut tsdf = TsdfVolume::new(lo, hi, ts.voxel).map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
+    let mut tsdf = TsdfVolume::new(lo, hi, ts.voxel)
+        .map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
     let n_cams = cams.len() as u32;
     for (i, cam) in cams.iter().enumerate() {
         let out = render::<f32, _>(surfels, cam, settings)?;
         let depth: Vec<f32> = match opts.mesh_depth {
-            MeshDepth::Expected => out.expected_depth().iter().zip(&out.alpha).map(|(&d, &a)| if a > 0.5 { d } else { 0.0 }).collect(),
+            MeshDepth::Expected => out
+                .expected_depth()
+                .iter()
+                .zip(&out.alpha)
+                .map(|(&d, &a)| if a > 0.5 { d } else { 0.0 })
+                .collect(),
             MeshDepth::Median => out.median.clone(),
         };
-        tsdf.integrate(cam, &depth, ts.trunc, ts.max_depth).map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
+        tsdf.integrate(cam, &depth, ts.trunc, ts.max_depth)
+            .map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
         progress("meshing", i as u32 + 1, n_cams);
     }
     let mut mesh = tsdf.extract_mesh();
@@ -300,26 +364,40 @@ pub fn simulate(
     let mut members: Vec<(u16, Vec<[f32; 3]>, Vec<u32>)> = Vec::new();
     for &(id, c) in objects {
         let p = channel_probs(surfels, c);
-        let idx: Vec<u32> = (0..surfels.len() as u32).filter(|&i| p[i as usize] > 0.5).collect();
+        let idx: Vec<u32> = (0..surfels.len() as u32)
+            .filter(|&i| p[i as usize] > 0.5)
+            .collect();
         let centres: Vec<[f32; 3]> = idx.iter().map(|&i| surfels.means[i as usize]).collect();
         pts.extend_from_slice(&centres);
         labels.extend(std::iter::repeat_n(id, centres.len()));
         members.push((id, centres, idx));
     }
     if !mesh.vertices.is_empty() && !pts.is_empty() {
-        mesh.label_by_nearest(&pts, &labels).map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
+        mesh.label_by_nearest(&pts, &labels)
+            .map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
     }
     let meshing_s = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();
-    let objs: Vec<ObjectSurfels> =
-        members.iter().map(|(id, c, idx)| ObjectSurfels { id: *id, centres: c, surfel_indices: idx }).collect();
-    let mesh_for_particles = if mesh.labels.is_some() { mesh.clone() } else { trand_physics::Mesh::default() };
-    let set = build_particles(&objs, &mesh_for_particles, opts.fill).map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
+    let objs: Vec<ObjectSurfels> = members
+        .iter()
+        .map(|(id, c, idx)| ObjectSurfels {
+            id: *id,
+            centres: c,
+            surfel_indices: idx,
+        })
+        .collect();
+    let mesh_for_particles = if mesh.labels.is_some() {
+        mesh.clone()
+    } else {
+        trand_physics::Mesh::default()
+    };
+    let set = build_particles(&objs, &mesh_for_particles, opts.fill)
+        .map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
     let mut max_disp = 0.0f32;
     if !set.positions.is_empty() {
-        let mut solver =
-            MpmSolver::new(opts.mpm.clone(), &set.positions).map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
+        let mut solver = MpmSolver::new(opts.mpm.clone(), &set.positions)
+            .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
         let frames = opts.mpm.frames;
         solver
             .run(frames, |i, n| progress("simulation", i, n))
@@ -352,11 +430,24 @@ pub fn simulate(
     let simulation_s = t1.elapsed().as_secs_f64();
     let io_mesh = trand_io::Mesh {
         vertices: mesh.vertices.clone(),
-        colors: mesh.labels.as_ref().map(|l| l.iter().map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8)).collect()),
-        labels: mesh.labels.as_ref().map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
+        colors: mesh.labels.as_ref().map(|l| {
+            l.iter()
+                .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
+                .collect()
+        }),
+        labels: mesh
+            .labels
+            .as_ref()
+            .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
         faces: mesh.faces.clone(),
     };
-    Ok((io_mesh, set.positions.len(), max_disp, meshing_s, simulation_s))
+    Ok((
+        io_mesh,
+        set.positions.len(),
+        max_disp,
+        meshing_s,
+        simulation_s,
+    ))
 }
 
 /// Replaces the simulated positions of the surfels `idx` (currently in `surfels.means`, previously at
@@ -369,10 +460,17 @@ fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
     let v = |a: [f32; 3]| DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64);
     let n = idx.len() as f64;
     let pbar = idx.iter().map(|&i| v(before[i as usize])).sum::<DVec3>() / n;
-    let qbar = idx.iter().map(|&i| v(surfels.means[i as usize])).sum::<DVec3>() / n;
+    let qbar = idx
+        .iter()
+        .map(|&i| v(surfels.means[i as usize]))
+        .sum::<DVec3>()
+        / n;
     let mut m = glam::DMat3::ZERO;
     for &i in idx {
-        let (p, q) = (v(before[i as usize]) - pbar, v(surfels.means[i as usize]) - qbar);
+        let (p, q) = (
+            v(before[i as usize]) - pbar,
+            v(surfels.means[i as usize]) - qbar,
+        );
         m += glam::DMat3::from_cols(p * q.x, p * q.y, p * q.z).transpose();
     }
     let r = trand_physics::mpm::polar_rotation(m, glam::DQuat::IDENTITY);
@@ -408,7 +506,17 @@ pub fn update(
     };
     let t0 = Instant::now();
     let object_aware = supervision == Supervision::ObjectAware;
-    let matches = if object_aware { detect(&surfels, channels, new_view, &settings, opts.centroid_weight)? } else { Vec::new() };
+    let matches = if object_aware {
+        detect(
+            &surfels,
+            channels,
+            new_view,
+            &settings,
+            opts.centroid_weight,
+        )?
+    } else {
+        Vec::new()
+    };
     let removed: Vec<u16> = match &opts.removed {
         Some(r) => {
             for id in r {
@@ -421,11 +529,19 @@ pub fn update(
             }
             r.clone()
         }
-        None => matches.iter().filter(|m| m.new_id.is_none()).map(|m| m.object_id).collect(),
+        None => matches
+            .iter()
+            .filter(|m| m.new_id.is_none())
+            .map(|m| m.object_id)
+            .collect(),
     };
     let before = surfels.len();
     for &id in &removed {
-        let c = channels.iter().find(|x| x.0 == id).expect("checked above").1;
+        let c = channels
+            .iter()
+            .find(|x| x.0 == id)
+            .expect("checked above")
+            .1;
         let p = channel_probs(&surfels, c);
         let keep: Vec<bool> = p.iter().map(|&v| v <= 0.5).collect();
         surfels.retain(&keep);
@@ -433,10 +549,15 @@ pub fn update(
     let deleted = before - surfels.len();
     let detection_s = t0.elapsed().as_secs_f64();
 
-    let remaining: Vec<(u16, usize)> = channels.iter().copied().filter(|c| !removed.contains(&c.0)).collect();
+    let remaining: Vec<(u16, usize)> = channels
+        .iter()
+        .copied()
+        .filter(|c| !removed.contains(&c.0))
+        .collect();
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
-            let (m, n, d, a, b) = simulate(&mut surfels, &remaining, scale, opts, &settings, progress)?;
+            let (m, n, d, a, b) =
+                simulate(&mut surfels, &remaining, scale, opts, &settings, progress)?;
             (Some(m), n, d, a, b)
         } else {
             (None, 0, 0.0, 0.0, 0.0)
@@ -463,9 +584,22 @@ pub fn update(
             map = remaining.clone();
         }
         let ds = opts.downsample.unwrap_or(scale.downsample);
-        let tv = targets::build(&view, &map, surfels.num_objects, opts.train.background, supervision, ds)?;
+        let tv = targets::build(
+            &view,
+            &map,
+            surfels.num_objects,
+            opts.train.background,
+            supervision,
+            ds,
+        )?;
         let views = [tv];
-        let mut trainer = Trainer::new(surfels, opts.train.clone(), &views, scale.extent, supervision);
+        let mut trainer = Trainer::new(
+            surfels,
+            opts.train.clone(),
+            &views,
+            scale.extent,
+            supervision,
+        );
         let last = opts.train.start_iteration + opts.train.iterations;
         for it in opts.train.start_iteration + 1..=last {
             let rep = trainer.step(it, it == last)?;
@@ -531,6 +665,10 @@ mod tests {
         }
         let q = s.quats[0];
         let got = Quat::from_xyzw(q[1], q[2], q[3], q[0]);
-        assert!(got.angle_between(r) < 0.02, "orientation off by {} rad", got.angle_between(r));
+        assert!(
+            got.angle_between(r) < 0.02,
+            "orientation off by {} rad",
+            got.angle_between(r)
+        );
     }
 }

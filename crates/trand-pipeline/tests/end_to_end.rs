@@ -5,33 +5,47 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use trand_eval::{evaluate, Metrics};
-use trand_io::{read_sequence, select_train_views, Sequence, View, ViewCount};
+use trand_eval::{Metrics, evaluate};
+use trand_io::{Sequence, View, ViewCount, read_sequence, select_train_views};
 use trand_pipeline::outputs::render_views;
-use trand_pipeline::update::{update, SceneScale, UpdateOptions};
-use trand_pipeline::{reconstruct, ReconstructOptions, Supervision};
+use trand_pipeline::update::{SceneScale, UpdateOptions, update};
+use trand_pipeline::{ReconstructOptions, Supervision, reconstruct};
 use trand_render::RenderSettings;
 
 fn metrics(surfels: &trand_core::Surfels, views: &[View]) -> Metrics {
     let renders = render_views(surfels, views, &RenderSettings::default()).expect("render");
-    let preds: Vec<(String, trand_io::DepthMap)> =
-        views.iter().zip(renders).map(|(v, r)| (v.name.clone(), r.depth)).collect();
+    let preds: Vec<(String, trand_io::DepthMap)> = views
+        .iter()
+        .zip(renders)
+        .map(|(v, r)| (v.name.clone(), r.depth))
+        .collect();
     evaluate(&preds, views).expect("evaluate")
 }
 
 fn scale(seq: &Sequence, downsample: u32) -> SceneScale {
-    let cams: Vec<_> = select_train_views(&seq.train_t0, ViewCount::Six).iter().map(|v| v.camera).collect();
+    let cams: Vec<_> = select_train_views(&seq.train_t0, ViewCount::Six)
+        .iter()
+        .map(|v| v.camera)
+        .collect();
     SceneScale::from_cameras(&cams, downsample)
 }
 
 /// Reconstructs with `iterations` at `downsample`, then updates; returns (t0, t1) metrics and the
 /// removed ids the update found.
 fn run(seq: &Sequence, iterations: u32, downsample: u32) -> (Metrics, Metrics, Vec<u16>) {
-    let mut opts = ReconstructOptions { downsample, ..Default::default() };
+    let mut opts = ReconstructOptions {
+        downsample,
+        ..Default::default()
+    };
     opts.train.iterations = iterations;
-    let rec = reconstruct(seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false)).expect("reconstruct");
+    let rec = reconstruct(seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false))
+        .expect("reconstruct");
     let m0 = metrics(&rec.surfels, &seq.test_t0);
-    let new_view = seq.train_t1.iter().find(|v| v.frame == 0).expect("train_1 frame 0");
+    let new_view = seq
+        .train_t1
+        .iter()
+        .find(|v| v.frame == 0)
+        .expect("train_1 frame 0");
     let up = update(
         rec.surfels.clone(),
         &rec.channels,
@@ -57,19 +71,32 @@ fn tiny_synthetic_scene_is_reconstructed_and_updated_within_bounds() {
     trand_synth::generate(&cfg).expect("synth");
     let seq = read_sequence(&out).expect("read synthetic sequence");
     let (m0, m1, removed) = run(&seq, 200, 1);
-    println!("tiny t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}", m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]);
+    println!(
+        "tiny t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}",
+        m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]
+    );
     assert!(m0.mae_m < 0.04, "t0 MAE {} m", m0.mae_m);
     assert!(m0.acc[2] > 0.6, "t0 share under 2.5 cm {}", m0.acc[2]);
     assert_eq!(Some(removed), seq.removed_ids, "detected removal");
-    assert!(m1.mae_m < 0.04 && m1.acc[2] > 0.6, "t1 MAE {} m, share {}", m1.mae_m, m1.acc[2]);
+    assert!(
+        m1.mae_m < 0.04 && m1.acc[2] > 0.6,
+        "t1 MAE {} m, share {}",
+        m1.mae_m,
+        m1.acc[2]
+    );
 }
 
 fn blender(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender").join(name);
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/blender")
+        .join(name);
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("note: {} not found; Blender end-to-end check skipped", p.display());
+        eprintln!(
+            "note: {} not found; Blender end-to-end check skipped",
+            p.display()
+        );
         None
     }
 }
@@ -83,9 +110,22 @@ fn blender_sequences_beat_the_papers_rows_after_a_short_run() {
         let Some(path) = blender(name) else { continue };
         let seq = read_sequence(&path).expect("read Blender sequence");
         let (m0, m1, removed) = run(&seq, 150, 4);
-        println!("{name} t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}", m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]);
-        assert!(m0.mae_m < 0.038 && m0.acc[2] > 0.6911, "{name} t0: MAE {} share {}", m0.mae_m, m0.acc[2]);
-        assert!(m1.mae_m < 0.0864 && m1.acc[2] > 0.4846, "{name} t1: MAE {} share {}", m1.mae_m, m1.acc[2]);
+        println!(
+            "{name} t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}",
+            m0.mae_m, m0.acc[2], m1.mae_m, m1.acc[2]
+        );
+        assert!(
+            m0.mae_m < 0.038 && m0.acc[2] > 0.6911,
+            "{name} t0: MAE {} share {}",
+            m0.mae_m,
+            m0.acc[2]
+        );
+        assert!(
+            m1.mae_m < 0.0864 && m1.acc[2] > 0.4846,
+            "{name} t1: MAE {} share {}",
+            m1.mae_m,
+            m1.acc[2]
+        );
         assert_eq!(Some(removed), seq.removed_ids, "{name}: detected removal");
     }
 }
@@ -94,18 +134,35 @@ fn blender_sequences_beat_the_papers_rows_after_a_short_run() {
 fn same_seed_gives_bit_identical_surfels_for_one_and_two_threads() {
     let dir = trand_io::ScratchDir::new("e2e-det").expect("scratch dir");
     let out = dir.path().join("seq");
-    trand_synth::generate(&trand_synth::SynthConfig::new(trand_synth::Preset::Tiny, 2, &out)).expect("synth");
+    trand_synth::generate(&trand_synth::SynthConfig::new(
+        trand_synth::Preset::Tiny,
+        2,
+        &out,
+    ))
+    .expect("synth");
     let seq = read_sequence(&out).expect("read");
     let mut opts = ReconstructOptions::default();
     // Past the first densification (20) and opacity reset (100), with the object loss active (> 100).
     opts.train.iterations = 110;
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-        pool.install(|| reconstruct(&seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false)).expect("reconstruct"))
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.install(|| {
+            reconstruct(&seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false))
+                .expect("reconstruct")
+        })
     };
     let (a, b) = (run(1), run(2));
     let bits = |s: &trand_core::Surfels| -> Vec<u32> {
-        s.means.as_flattened().iter().chain(s.log_scales.as_flattened()).chain(&s.obj_logits).map(|v| v.to_bits()).collect()
+        s.means
+            .as_flattened()
+            .iter()
+            .chain(s.log_scales.as_flattened())
+            .chain(&s.obj_logits)
+            .map(|v| v.to_bits())
+            .collect()
     };
     assert!(!a.surfels.is_empty());
     assert_eq!(a.surfels.len(), b.surfels.len());

@@ -5,7 +5,7 @@ use std::sync::OnceLock;
 
 use trand_core::Surfels;
 use trand_render::bench_scene::{tabletop_camera, tabletop_scene};
-use trand_render::{render, Maps, OutputGrads, RenderSettings};
+use trand_render::{Maps, OutputGrads, RenderSettings, render};
 
 const SIZES: [usize; 3] = [10_000, 30_000, 100_000];
 
@@ -16,7 +16,10 @@ fn scene(n: usize) -> &'static Surfels {
 }
 
 fn settings() -> RenderSettings {
-    RenderSettings { maps: Maps::All, ..Default::default() }
+    RenderSettings {
+        maps: Maps::All,
+        ..Default::default()
+    }
 }
 
 #[divan::bench(args = SIZES, sample_count = 20)]

@@ -1,7 +1,7 @@
 //! Renders the 30k-surfel tabletop benchmark scene once (forward, or forward+backward with `bwd`), for
 //! profilers and instruction counters: `cargo run --release --example render_once -- 30000 bwd`.
 use trand_render::bench_scene::{tabletop_camera, tabletop_scene};
-use trand_render::{render, Maps, OutputGrads, RenderSettings};
+use trand_render::{Maps, OutputGrads, RenderSettings, render};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -10,7 +10,10 @@ fn main() {
     let reps: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(5);
     let s = tabletop_scene(n, 7);
     let cam = tabletop_camera();
-    let settings = RenderSettings { maps: Maps::All, ..Default::default() };
+    let settings = RenderSettings {
+        maps: Maps::All,
+        ..Default::default()
+    };
     let np = 640 * 480;
     let grads = OutputGrads {
         rgb: Some(vec![1e-3f32; np * 3]),
@@ -25,5 +28,8 @@ fn main() {
             std::hint::black_box(out.backward(&s, &grads));
         }
     }
-    println!("{:.1} ms per call", t0.elapsed().as_secs_f64() * 1e3 / reps as f64);
+    println!(
+        "{:.1} ms per call",
+        t0.elapsed().as_secs_f64() * 1e3 / reps as f64
+    );
 }

@@ -28,12 +28,12 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
-use crate::forward::{cut_row, half_columns, span_mask, tile_pixels, Plane};
-use crate::intersect::{intersect_lanes, ndc_depth_lanes, Row};
-use crate::lanes::{rsub, select, LANES, M, V};
+use crate::forward::{Plane, cut_row, half_columns, span_mask, tile_pixels};
+use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes};
+use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
-use crate::simd::{prefetch, PREFETCH_AHEAD};
 use crate::preprocess::{Proj, ProjGrad};
+use crate::simd::{PREFETCH_AHEAD, prefetch};
 
 /// Offsets inside a pair gradient record.
 pub mod rec {
@@ -102,9 +102,18 @@ pub fn backward_tile<R: Real>(
     let mut g_rgb: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
     let mut g_msk: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
     let mut g_nrm: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut g_obj: Vec<Plane<R>> = if has_obj { vec![[z; TILE_PIXELS]; k_obj] } else { Vec::new() };
-    let (mut g_a, mut g_d, mut g_med, mut g_dist, mut g_bg) =
-        ([z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS], [z; TILE_PIXELS]);
+    let mut g_obj: Vec<Plane<R>> = if has_obj {
+        vec![[z; TILE_PIXELS]; k_obj]
+    } else {
+        Vec::new()
+    };
+    let (mut g_a, mut g_d, mut g_med, mut g_dist, mut g_bg) = (
+        [z; TILE_PIXELS],
+        [z; TILE_PIXELS],
+        [z; TILE_PIXELS],
+        [z; TILE_PIXELS],
+        [z; TILE_PIXELS],
+    );
     let t_final = plane(lay.t_final);
     for y in ty0..=ty1 {
         for x in tx0..=tx1 {
@@ -150,7 +159,9 @@ pub fn backward_tile<R: Real>(
     let mut suffix: Plane<R> = [z; TILE_PIXELS];
 
     // Pixels join the walk at their last blended surfel: sort them by `last`, descending.
-    let mut order: Vec<u16> = (0..TILE_PIXELS as u16).filter(|&i| last[i as usize] > 0).collect();
+    let mut order: Vec<u16> = (0..TILE_PIXELS as u16)
+        .filter(|&i| last[i as usize] > 0)
+        .collect();
     order.sort_unstable_by_key(|&i| std::cmp::Reverse(last[i as usize]));
     let mut next = 0usize;
     let mut active = [0u16; TILE as usize];
@@ -254,7 +265,11 @@ pub fn backward_tile<R: Real>(
                 let s_v = V::load(&suffix[px.clone()]);
                 let bracket = v - s_v;
                 select(h.valid, a * v + one_m * s_v, s_v).store(&mut suffix[px.clone()]);
-                let d_alpha = select(h.valid, t_i * bracket - V::load(&g_bg[px.clone()]) * inv_one_m, zv);
+                let d_alpha = select(
+                    h.valid,
+                    t_i * bracket - V::load(&g_bg[px.clone()]) * inv_one_m,
+                    zv,
+                );
                 select(h.valid, t_i, tr_v).store(&mut tr[px.clone()]);
 
                 // α = min(0.99, o·G), G = exp(−ρ/2).
@@ -269,10 +284,22 @@ pub fn backward_tile<R: Real>(
                 acc[rec::CENTER + 1] += select(filter, d_rho * (filt2 * (p.center[1] - yr)), zv);
                 let inv = h.inv_pz;
                 let gp = [gu * inv, gv * inv, rsub(R::ZERO, gu * h.u + gv * h.v) * inv];
-                let k = [xr * p.t_w[0] - p.t_u[0], xr * p.t_w[1] - p.t_u[1], xr * p.t_w[2] - p.t_u[2]];
+                let k = [
+                    xr * p.t_w[0] - p.t_u[0],
+                    xr * p.t_w[1] - p.t_u[1],
+                    xr * p.t_w[2] - p.t_u[2],
+                ];
                 let l = row.l;
-                let gk = [gp[2] * l[1] - gp[1] * l[2], gp[0] * l[2] - gp[2] * l[0], gp[1] * l[0] - gp[0] * l[1]];
-                let gl = [gp[1] * k[2] - gp[2] * k[1], gp[2] * k[0] - gp[0] * k[2], gp[0] * k[1] - gp[1] * k[0]];
+                let gk = [
+                    gp[2] * l[1] - gp[1] * l[2],
+                    gp[0] * l[2] - gp[2] * l[0],
+                    gp[1] * l[0] - gp[0] * l[1],
+                ];
+                let gl = [
+                    gp[1] * k[2] - gp[2] * k[1],
+                    gp[2] * k[0] - gp[0] * k[2],
+                    gp[0] * k[1] - gp[1] * k[0],
+                ];
                 let uv1 = [h.u, h.v, V::splat(R::ONE)];
                 for c in 0..3 {
                     acc[rec::T + c] -= gk[c];
@@ -294,7 +321,13 @@ pub fn backward_tile<R: Real>(
 }
 
 /// Stage 5: sums the pair records of visible surfel `j` in its fixed pair order.
-pub fn reduce_surfel<R: Real>(j: usize, bins: &Bins, pairs: &[R], k_obj: usize, dprobs: &mut [R]) -> ProjGrad<R> {
+pub fn reduce_surfel<R: Real>(
+    j: usize,
+    bins: &Bins,
+    pairs: &[R],
+    k_obj: usize,
+    dprobs: &mut [R],
+) -> ProjGrad<R> {
     let stride = rec::stride(k_obj);
     let mut g = ProjGrad::<R>::default();
     dprobs.fill(R::ZERO);

@@ -82,5 +82,12 @@ pub fn bin<R: Real>(projs: &[Proj<R>], tiles_x: u32, tiles_y: u32) -> Bins {
             }
         }
     }
-    Bins { tiles_x, tiles_y, tile_start, tile_list, pair_start, pair_pos }
+    Bins {
+        tiles_x,
+        tiles_y,
+        tile_start,
+        tile_list,
+        pair_start,
+        pair_pos,
+    }
 }

@@ -32,7 +32,11 @@ impl<R: Real> CamR<R> {
             height: k.height,
             rot: c.r_w2c.map(|r| r.map(R::from_f64)),
             trans: c.t_w2c.map(R::from_f64),
-            center: [R::from_f64(center.x), R::from_f64(center.y), R::from_f64(center.z)],
+            center: [
+                R::from_f64(center.x),
+                R::from_f64(center.y),
+                R::from_f64(center.z),
+            ],
             near: R::from_f64(near),
         }
     }
@@ -72,4 +76,3 @@ impl<R: Real> CamR<R> {
 pub(crate) fn dot<R: Real>(a: [R; 3], b: [R; 3]) -> R {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
-

@@ -24,15 +24,15 @@
 
 use trand_core::Real;
 
+use crate::GeometryMaps;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
-use crate::intersect::{intersect_lanes, ndc_depth_lanes, row_columns, Row};
-use crate::lanes::{rsub, select, LANES, M, V};
+use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes, row_columns};
+use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
-use crate::simd::{prefetch, PREFETCH_AHEAD};
 use crate::preprocess::Proj;
-use crate::GeometryMaps;
+use crate::simd::{PREFETCH_AHEAD, prefetch};
 
 /// One channel plane of a tile.
 pub type Plane<R> = [R; TILE_PIXELS];
@@ -42,7 +42,12 @@ pub type Plane<R> = [R; TILE_PIXELS];
 pub fn tile_pixels(t: usize, tiles_x: u32, width: u32, height: u32) -> (i32, i32, i32, i32) {
     let tx = (t as u32 % tiles_x) * TILE;
     let ty = (t as u32 / tiles_x) * TILE;
-    (tx as i32, ty as i32, ((tx + TILE).min(width) - 1) as i32, ((ty + TILE).min(height) - 1) as i32)
+    (
+        tx as i32,
+        ty as i32,
+        ((tx + TILE).min(width) - 1) as i32,
+        ((ty + TILE).min(height) - 1) as i32,
+    )
 }
 
 /// Bit mask of local columns `x0..=x1` (relative to the tile).
@@ -55,14 +60,20 @@ pub fn span_mask(x0: i32, x1: i32) -> u16 {
 /// Image columns of the two eight-pixel halves of a row of the tile starting at column `tx0`.
 #[inline(always)]
 pub fn half_columns<R: Real>(tx0: i32) -> [V<R>; 2] {
-    std::array::from_fn(|h| V(std::array::from_fn(|l| R::from_f64((tx0 + (h * LANES + l) as i32) as f64))))
+    std::array::from_fn(|h| {
+        V(std::array::from_fn(|l| {
+            R::from_f64((tx0 + (h * LANES + l) as i32) as f64)
+        }))
+    })
 }
 
 /// `bits` (a row's pixels, tile-local, within the surfel's box columns `x0..=x1`) restricted to the
 /// columns of image row `yr` where the surfel can reach α ≥ 1/255 ([`row_columns`]); 0 when none.
 #[inline(always)]
 pub fn cut_row<R: Real>(p: &Proj<R>, yr: R, tx0: i32, x0: i32, x1: i32, bits: u16) -> u16 {
-    let Some((c0, c1)) = row_columns(p, yr) else { return 0 };
+    let Some((c0, c1)) = row_columns(p, yr) else {
+        return 0;
+    };
     let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
     if c0 > c1 {
         return 0;
@@ -109,7 +120,11 @@ pub fn raster_tile<R: Real>(
     let mut dist: Plane<R> = [z; TILE_PIXELS];
     let mut m1: Plane<R> = [z; TILE_PIXELS];
     let mut m2: Plane<R> = [z; TILE_PIXELS];
-    let mut obj: Vec<Plane<R>> = if has_obj { vec![[z; TILE_PIXELS]; k_obj] } else { Vec::new() };
+    let mut obj: Vec<Plane<R>> = if has_obj {
+        vec![[z; TILE_PIXELS]; k_obj]
+    } else {
+        Vec::new()
+    };
     let (last, medpos) = ibuf.split_at_mut(TILE_PIXELS);
     let last: &mut [u32; TILE_PIXELS] = last.try_into().expect("256 pixels");
     let medpos: &mut [u32; TILE_PIXELS] = medpos.try_into().expect("256 pixels");
@@ -207,7 +222,9 @@ pub fn raster_tile<R: Real>(
         }
     }
 
-    let mut put = |ch: usize, plane: &Plane<R>| buf[ch * TILE_PIXELS..(ch + 1) * TILE_PIXELS].copy_from_slice(plane);
+    let mut put = |ch: usize, plane: &Plane<R>| {
+        buf[ch * TILE_PIXELS..(ch + 1) * TILE_PIXELS].copy_from_slice(plane)
+    };
     for c in 0..3 {
         for idx in 0..TILE_PIXELS {
             rgb[c][idx] += tr[idx] * background[c];

@@ -8,7 +8,7 @@
 use trand_core::Real;
 
 use crate::constants::{FILTER_INV_SQUARE, MAX_ALPHA, MIN_ALPHA};
-use crate::lanes::{rsub, select, M, V};
+use crate::lanes::{M, V, rsub, select};
 use crate::preprocess::Proj;
 
 /// A ray–surfel hit that passes the depth and alpha gates.
@@ -40,8 +40,19 @@ impl<R: Real> Row<R> {
     pub fn new(p: &Proj<R>, y: R) -> Self {
         let (tu, tv, tw) = (&p.t_u, &p.t_v, &p.t_w);
         let l = [y * tw[0] - tv[0], y * tw[1] - tv[1], y * tw[2] - tv[2]];
-        let cross = |u: &[R; 3]| [u[1] * l[2] - u[2] * l[1], u[2] * l[0] - u[0] * l[2], u[0] * l[1] - u[1] * l[0]];
-        Self { y, l, a: cross(tw), b: cross(tu) }
+        let cross = |u: &[R; 3]| {
+            [
+                u[1] * l[2] - u[2] * l[1],
+                u[2] * l[0] - u[0] * l[2],
+                u[0] * l[1] - u[1] * l[0],
+            ]
+        };
+        Self {
+            y,
+            l,
+            a: cross(tw),
+            b: cross(tu),
+        }
     }
 }
 
@@ -57,7 +68,9 @@ impl<R: Real> Row<R> {
 pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     let cut = &p.cut;
     let y = y.to_f64();
-    let Some(q) = cut.conic else { return Some((i32::MIN, i32::MAX)) };
+    let Some(q) = cut.conic else {
+        return Some((i32::MIN, i32::MAX));
+    };
     let b = q[1] * y + q[2];
     let c = (q[3] * y + 2.0 * q[4]) * y + q[5];
     let disc = b * b - q[0] * c;
@@ -79,7 +92,10 @@ pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     if !(lo <= hi) {
         return Some((i32::MIN, i32::MAX));
     }
-    Some((lo.max(i32::MIN as f64) as i32, hi.min(i32::MAX as f64) as i32))
+    Some((
+        lo.max(i32::MIN as f64) as i32,
+        hi.min(i32::MAX as f64) as i32,
+    ))
 }
 
 /// The hit of pixel `(x, row.y)` with surfel `p`, if it passes the depth and alpha gates.
@@ -111,7 +127,15 @@ pub fn intersect<R: Real>(p: &Proj<R>, row: &Row<R>, x: R, near: R) -> Option<Hi
     if alpha < R::from_f64(MIN_ALPHA) {
         return None;
     }
-    Some(Hit { u, v, z, g, alpha, object_space, clamped })
+    Some(Hit {
+        u,
+        v,
+        z,
+        g,
+        alpha,
+        object_space,
+        clamped,
+    })
 }
 
 /// The hits of eight pixels of a row, [`intersect`] lane by lane. Lanes that miss (outside `lanes`,
@@ -134,7 +158,13 @@ pub struct Hits<R> {
 /// [`intersect`] for the eight pixels at columns `xs` of `row`, restricted to `lanes`: the same
 /// operations in the same order, so each lane equals the scalar result bit for bit.
 #[inline(always)]
-pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, lanes: M<R>) -> Hits<R> {
+pub fn intersect_lanes<R: Real>(
+    p: &Proj<R>,
+    row: &Row<R>,
+    xs: V<R>,
+    near: R,
+    lanes: M<R>,
+) -> Hits<R> {
     let tw = &p.t_w;
     let px = xs * row.a[0] - row.b[0];
     let py = xs * row.a[1] - row.b[1];
@@ -154,7 +184,8 @@ pub fn intersect_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, near: R, la
     let max_a = V::splat(R::from_f64(MAX_ALPHA));
     let clamped = a.gt(max_a);
     let alpha = select(clamped, max_a, a);
-    let valid = lanes & nonzero & !z.lt(V::splat(near)) & !alpha.lt(V::splat(R::from_f64(MIN_ALPHA)));
+    let valid =
+        lanes & nonzero & !z.lt(V::splat(near)) & !alpha.lt(V::splat(R::from_f64(MIN_ALPHA)));
     let (zero, one) = (V::splat(R::ZERO), V::splat(R::ONE));
     Hits {
         u: select(valid, u, zero),
@@ -176,5 +207,8 @@ pub fn ndc_depth_lanes<R: Real>(z: V<R>) -> (V<R>, V<R>) {
     let n = R::from_f64(crate::constants::DEFAULT_NEAR);
     let f = R::from_f64(crate::constants::FAR);
     let a = f / (f - n);
-    (rsub(R::ONE, V::splat(n) / z) * a, (V::splat(a * n) / (z * z)))
+    (
+        rsub(R::ONE, V::splat(n) / z) * a,
+        (V::splat(a * n) / (z * z)),
+    )
 }

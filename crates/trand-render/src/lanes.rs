@@ -65,19 +65,35 @@ impl<R: Real> V<R> {
     }
     #[inline(always)]
     pub fn lt(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] < o.0[l] { R::ONE } else { R::ZERO }))
+        M(lanes!(R::ZERO, |l| if self.0[l] < o.0[l] {
+            R::ONE
+        } else {
+            R::ZERO
+        }))
     }
     #[inline(always)]
     pub fn le(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] <= o.0[l] { R::ONE } else { R::ZERO }))
+        M(lanes!(R::ZERO, |l| if self.0[l] <= o.0[l] {
+            R::ONE
+        } else {
+            R::ZERO
+        }))
     }
     #[inline(always)]
     pub fn gt(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] > o.0[l] { R::ONE } else { R::ZERO }))
+        M(lanes!(R::ZERO, |l| if self.0[l] > o.0[l] {
+            R::ONE
+        } else {
+            R::ZERO
+        }))
     }
     #[inline(always)]
     pub fn ne(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] != o.0[l] { R::ONE } else { R::ZERO }))
+        M(lanes!(R::ZERO, |l| if self.0[l] != o.0[l] {
+            R::ONE
+        } else {
+            R::ZERO
+        }))
     }
     /// Lane sum in lane order (a fixed order: deterministic).
     #[inline(always)]
@@ -93,14 +109,22 @@ impl<R: Real> V<R> {
 /// `m ? a : b` per lane.
 #[inline(always)]
 pub fn select<R: Real>(m: M<R>, a: V<R>, b: V<R>) -> V<R> {
-    V(lanes!(R::ZERO, |l| if m.0[l] != R::ZERO { a.0[l] } else { b.0[l] }))
+    V(lanes!(R::ZERO, |l| if m.0[l] != R::ZERO {
+        a.0[l]
+    } else {
+        b.0[l]
+    }))
 }
 
 impl<R: Real> M<R> {
     /// Lane `l` set where bit `l` of `bits` is.
     #[inline(always)]
     pub fn from_bits(bits: u8) -> Self {
-        Self(lanes!(R::ZERO, |l| if bits >> l & 1 != 0 { R::ONE } else { R::ZERO }))
+        Self(lanes!(R::ZERO, |l| if bits >> l & 1 != 0 {
+            R::ONE
+        } else {
+            R::ZERO
+        }))
     }
     /// Lane `l` set where `f(l)`.
     #[inline(always)]
@@ -196,7 +220,10 @@ mod tests {
         for b in 0..=255u8 {
             assert_eq!(M::<f32>::from_bits(b).bits(), b);
             assert_eq!((!M::<f64>::from_bits(b)).bits(), !b);
-            assert_eq!((M::<f32>::from_bits(b) & M::from_bits(0b0110_1100)).bits(), b & 0b0110_1100);
+            assert_eq!(
+                (M::<f32>::from_bits(b) & M::from_bits(0b0110_1100)).bits(),
+                b & 0b0110_1100
+            );
         }
     }
 

@@ -19,6 +19,7 @@
 //! tests, from one source. Entry points: [`render`] and [`Rendered::backward`].
 
 pub mod backward;
+pub mod bench_scene;
 pub mod binning;
 pub mod camera;
 pub mod constants;
@@ -30,7 +31,9 @@ pub mod params;
 pub mod preprocess;
 mod render;
 pub mod simd;
-pub mod bench_scene;
 
 pub use params::{ParamsOf, SurfelParams};
-pub use render::{render, GeometryMaps, Gradients, Maps, OutputGrads, RenderError, RenderSettings, Rendered, MAX_OBJECTS};
+pub use render::{
+    GeometryMaps, Gradients, MAX_OBJECTS, Maps, OutputGrads, RenderError, RenderSettings, Rendered,
+    render,
+};

@@ -4,7 +4,7 @@
 //! need the very same rasterizer to run on `f64` parameters. [`SurfelParams`] abstracts over both:
 //! the preprocess stage is the only reader, once per surfel per render.
 
-use trand_core::{sh::num_coeffs, Real, Surfels};
+use trand_core::{Real, Surfels, sh::num_coeffs};
 
 /// Per-surfel parameter access in precision `R` (raw, pre-activation values; see [`Surfels`]).
 pub trait SurfelParams<R: Real>: Sync {
@@ -146,11 +146,13 @@ impl<R: Real> ParamsOf<R> {
             for k in 1..nc.min(rs / 3 + 1) {
                 for ch in 0..3 {
                     s.sh_rest[i * rs + (k - 1) * 3 + ch] = self.sh[(i * nc + k) * 3 + ch].to_f32();
-                    s.mask_rest[i * rs + (k - 1) * 3 + ch] = self.mask_sh[(i * nc + k) * 3 + ch].to_f32();
+                    s.mask_rest[i * rs + (k - 1) * 3 + ch] =
+                        self.mask_sh[(i * nc + k) * 3 + ch].to_f32();
                 }
             }
             for k in 0..self.num_objects {
-                s.obj_logits[i * self.num_objects + k] = self.obj_logits[i * self.num_objects + k].to_f32();
+                s.obj_logits[i * self.num_objects + k] =
+                    self.obj_logits[i * self.num_objects + k].to_f32();
             }
         }
     }

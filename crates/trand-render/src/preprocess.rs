@@ -21,12 +21,12 @@
 //!   gradient); the same for the mask colours; **object probabilities** = softmax of the logits.
 
 use trand_core::{
+    Real,
     math::{normalize_vjp, quat_to_rotmat, rotmat_vjp, sigmoid, softmax, softmax_vjp},
     sh::{basis, basis_jacobian, num_coeffs},
-    Real,
 };
 
-use crate::camera::{dot, CamR};
+use crate::camera::{CamR, dot};
 use crate::constants::{FILTER_INV_SQUARE, FILTER_RADIUS, MIN_ALPHA, SIGMA_CUTOFF, TILE};
 use crate::params::{ParamsOf, SurfelParams};
 
@@ -83,10 +83,18 @@ impl RowCut {
     fn new<R: Real>(t_u: [R; 3], t_v: [R; 3], t_w: [R; 3], center: [R; 2], c: f64) -> Self {
         let f = |v: [R; 3]| v.map(R::to_f64);
         let (tu, tv, tw) = (f(t_u), f(t_v), f(t_w));
-        let cr = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+        let cr = |a: [f64; 3], b: [f64; 3]| {
+            [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ]
+        };
         let cols = [cr(tv, tw), cr(tw, tu), cr(tu, tv)];
         let det = tu[0] * cols[0][0] + tu[1] * cols[0][1] + tu[2] * cols[0][2];
-        let q = |i: usize, j: usize| cols[i][0] * cols[j][0] + cols[i][1] * cols[j][1] - c * cols[i][2] * cols[j][2];
+        let q = |i: usize, j: usize| {
+            cols[i][0] * cols[j][0] + cols[i][1] * cols[j][1] - c * cols[i][2] * cols[j][2]
+        };
         let conic = [q(0, 0), q(0, 1), q(0, 2), q(1, 1), q(1, 2), q(2, 2)];
         let usable = det != 0.0 && conic[0] > 0.0 && conic.iter().all(|v| v.is_finite());
         Self {
@@ -141,11 +149,31 @@ fn geometry<R: Real, P: SurfelParams<R>>(p: &P, i: usize, cam: &CamR<R>) -> Opti
     let cu = ru.map(|v| v * scale[0]);
     let cv = rv.map(|v| v * scale[1]);
     let rm = cam.rotate(mean);
-    let pv = [rm[0] + cam.trans[0], rm[1] + cam.trans[1], rm[2] + cam.trans[2]];
-    let t_u = [cam.fx * cu[0] + cam.cx * cu[2], cam.fx * cv[0] + cam.cx * cv[2], cam.fx * pv[0] + cam.cx * pv[2]];
-    let t_v = [cam.fy * cu[1] + cam.cy * cu[2], cam.fy * cv[1] + cam.cy * cv[2], cam.fy * pv[1] + cam.cy * pv[2]];
+    let pv = [
+        rm[0] + cam.trans[0],
+        rm[1] + cam.trans[1],
+        rm[2] + cam.trans[2],
+    ];
+    let t_u = [
+        cam.fx * cu[0] + cam.cx * cu[2],
+        cam.fx * cv[0] + cam.cx * cv[2],
+        cam.fx * pv[0] + cam.cx * pv[2],
+    ];
+    let t_v = [
+        cam.fy * cu[1] + cam.cy * cu[2],
+        cam.fy * cv[1] + cam.cy * cv[2],
+        cam.fy * pv[1] + cam.cy * pv[2],
+    ];
     let t_w = [cu[2], cv[2], pv[2]];
-    Some(Geometry { rot, qn, scale, pv, t_u, t_v, t_w })
+    Some(Geometry {
+        rot,
+        qn,
+        scale,
+        pv,
+        t_u,
+        t_v,
+        t_w,
+    })
 }
 
 /// Screen-space box of the contour `u² + v² = c2`: `(centre, half-extent)`, `None` when the contour is
@@ -187,9 +215,17 @@ fn sh_colour<R: Real>(coeff: impl Fn(usize, usize) -> R, nc: usize, y: &[R; 16])
 /// Unit view direction `normalize(μ − C)` and the distance `|μ − C|`.
 #[inline]
 fn view_dir<R: Real>(mean: [R; 3], cam: &CamR<R>) -> ([R; 3], R) {
-    let d = [mean[0] - cam.center[0], mean[1] - cam.center[1], mean[2] - cam.center[2]];
+    let d = [
+        mean[0] - cam.center[0],
+        mean[1] - cam.center[1],
+        mean[2] - cam.center[2],
+    ];
     let n = dot(d, d).sqrt();
-    if n > R::ZERO { (d.map(|v| v / n), n) } else { ([R::ZERO, R::ZERO, R::ONE], R::ONE) }
+    if n > R::ZERO {
+        (d.map(|v| v / n), n)
+    } else {
+        ([R::ZERO, R::ZERO, R::ONE], R::ONE)
+    }
 }
 
 /// Forward preprocess of surfel `i`. Writes the object probabilities into `probs` (length K) and returns
@@ -253,18 +289,35 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     let mut bb = [cx - rf, cy - rf, cx + rf, cy + rf];
     match conic_box(g.t_u, g.t_v, g.t_w, R::from_f64(r2)) {
         Some((c, h2, _)) => {
-            let (hx, hy) = (h2[0].max(R::ZERO).sqrt().to_f64(), h2[1].max(R::ZERO).sqrt().to_f64());
+            let (hx, hy) = (
+                h2[0].max(R::ZERO).sqrt().to_f64(),
+                h2[1].max(R::ZERO).sqrt().to_f64(),
+            );
             let (ex, ey) = (c[0].to_f64(), c[1].to_f64());
-            bb = [bb[0].min(ex - hx), bb[1].min(ey - hy), bb[2].max(ex + hx), bb[3].max(ey + hy)];
+            bb = [
+                bb[0].min(ex - hx),
+                bb[1].min(ey - hy),
+                bb[2].max(ex + hx),
+                bb[3].max(ey + hy),
+            ];
         }
-        None => bb = [f64::NEG_INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY],
+        None => {
+            bb = [
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+            ]
+        }
     }
     let t = TILE as i64;
     let bbox = [
         ((bb[0].floor() - 1.0).max((tiles[0] as i64 * t) as f64)) as i32,
         ((bb[1].floor() - 1.0).max((tiles[1] as i64 * t) as f64)) as i32,
-        ((bb[2].ceil() + 1.0).min((tiles[2] as i64 * t - 1).min(cam.width as i64 - 1) as f64)) as i32,
-        ((bb[3].ceil() + 1.0).min((tiles[3] as i64 * t - 1).min(cam.height as i64 - 1) as f64)) as i32,
+        ((bb[2].ceil() + 1.0).min((tiles[2] as i64 * t - 1).min(cam.width as i64 - 1) as f64))
+            as i32,
+        ((bb[3].ceil() + 1.0).min((tiles[3] as i64 * t - 1).min(cam.height as i64 - 1) as f64))
+            as i32,
     ];
     if bbox[0] > bbox[2] || bbox[1] > bbox[3] {
         return None;
@@ -284,7 +337,12 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
         *l = p.obj_logit(i, j);
     }
     softmax(logits, probs);
-    if !rgb.iter().chain(&mask).chain(probs.iter()).all(|v| v.is_finite()) {
+    if !rgb
+        .iter()
+        .chain(&mask)
+        .chain(probs.iter())
+        .all(|v| v.is_finite())
+    {
         return None;
     }
     Some(Proj {
@@ -380,8 +438,16 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
             }
             let gc = dc[ch];
             for k in 0..nc {
-                let coeff = if set == 0 { p.sh(i, k, ch) } else { p.mask_sh(i, k, ch) };
-                let slot = if set == 0 { &mut *out.sh } else { &mut *out.mask_sh };
+                let coeff = if set == 0 {
+                    p.sh(i, k, ch)
+                } else {
+                    p.mask_sh(i, k, ch)
+                };
+                let slot = if set == 0 {
+                    &mut *out.sh
+                } else {
+                    &mut *out.mask_sh
+                };
                 slot[k * 3 + ch] += y[k] * gc;
                 for a in 0..3 {
                     g_dir[a] += coeff * gc * jac[k][a];

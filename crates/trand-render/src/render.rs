@@ -3,14 +3,14 @@
 use rayon::prelude::*;
 use trand_core::{Camera, CameraError, Real};
 
-use crate::backward::{rec, reduce_surfel, GradMaps};
-use crate::binning::{bin, Bins};
+use crate::backward::{GradMaps, rec, reduce_surfel};
+use crate::binning::{Bins, bin};
 use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
-use crate::simd::{backward_tile, raster_tile};
-use crate::layout::{Layout, INT_CHANNELS};
+use crate::layout::{INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams};
-use crate::preprocess::{preprocess_backward_one, preprocess_one, Proj, SurfelGradSlot};
+use crate::preprocess::{Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one};
+use crate::simd::{backward_tile, raster_tile};
 
 /// The largest number of object channels the kernels support (fixed-size stack buffers).
 pub const MAX_OBJECTS: usize = 64;
@@ -30,7 +30,6 @@ pub enum Maps {
     /// Everything (TRAN-D training).
     All,
 }
-
 
 impl Maps {
     pub fn mask(self) -> bool {
@@ -68,7 +67,13 @@ pub struct RenderSettings {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { background: [0.0; 3], near: DEFAULT_NEAR, sh_degree: None, maps: Maps::Rgb, geometry: GeometryMaps::Rendered }
+        Self {
+            background: [0.0; 3],
+            near: DEFAULT_NEAR,
+            sh_degree: None,
+            maps: Maps::Rgb,
+            geometry: GeometryMaps::Rendered,
+        }
     }
 }
 
@@ -153,7 +158,11 @@ pub struct Gradients<R> {
 impl<R: Real> Rendered<R> {
     /// Expected depth `D / α` (0 where α = 0).
     pub fn expected_depth(&self) -> Vec<R> {
-        self.depth.iter().zip(&self.alpha).map(|(&d, &a)| if a > R::ZERO { d / a } else { R::ZERO }).collect()
+        self.depth
+            .iter()
+            .zip(&self.alpha)
+            .map(|(&d, &a)| if a > R::ZERO { d / a } else { R::ZERO })
+            .collect()
     }
 
     /// A hash of every discrete decision of the forward pass (visible set, tile rectangles, last and
@@ -180,7 +189,11 @@ impl<R: Real> Rendered<R> {
         let n_pix = (self.width * self.height) as usize;
         let check = |v: &Option<Vec<R>>, ch: usize, name: &str| {
             if let Some(v) = v {
-                assert_eq!(v.len(), n_pix * ch, "gradient map `{name}` has the wrong size");
+                assert_eq!(
+                    v.len(),
+                    n_pix * ch,
+                    "gradient map `{name}` has the wrong size"
+                );
             }
         };
         check(&grads.rgb, 3, "rgb");
@@ -222,21 +235,26 @@ impl<R: Real> Rendered<R> {
             rest = b;
         }
         let block = s.lay.block();
-        chunks.into_par_iter().enumerate().with_min_len(4).for_each(|(t, chunk)| {
-            backward_tile(
-                t,
-                &s.bins,
-                &s.projs,
-                &s.probs,
-                &s.lay,
-                &s.cam,
-                bg,
-                &s.blocks[t * block..(t + 1) * block],
-                &s.iblocks[t * INT_CHANNELS * TILE_PIXELS..(t + 1) * INT_CHANNELS * TILE_PIXELS],
-                &maps,
-                chunk,
-            )
-        });
+        chunks
+            .into_par_iter()
+            .enumerate()
+            .with_min_len(4)
+            .for_each(|(t, chunk)| {
+                backward_tile(
+                    t,
+                    &s.bins,
+                    &s.projs,
+                    &s.probs,
+                    &s.lay,
+                    &s.cam,
+                    bg,
+                    &s.blocks[t * block..(t + 1) * block],
+                    &s.iblocks
+                        [t * INT_CHANNELS * TILE_PIXELS..(t + 1) * INT_CHANNELS * TILE_PIXELS],
+                    &maps,
+                    chunk,
+                )
+            });
 
         // Stages 5 and 6: reduce per surfel, then the preprocess VJP, in parallel over visible surfels.
         // One flat record per visible surfel: mean 3, log-scale 2, quat 4, opacity 1, densify 2, SH, mask
@@ -246,33 +264,37 @@ impl<R: Real> Rendered<R> {
         let nc3 = trand_core::sh::num_coeffs(params.sh_degree()) * 3;
         let rs = 12 + 2 * nc3 + k;
         let mut recs = vec![R::ZERO; s.projs.len() * rs];
-        recs.par_chunks_mut(rs).zip(s.projs.par_iter()).enumerate().with_min_len(64).for_each(|(j, (r, proj))| {
-            let mut dprobs = [R::ZERO; MAX_OBJECTS];
-            let dprobs = &mut dprobs[..k];
-            let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
-            let probs = &s.probs[j * k..(j + 1) * k];
-            let (geo, rest) = r.split_at_mut(12);
-            let (sh, rest) = rest.split_at_mut(nc3);
-            let (mask_sh, obj_logits) = rest.split_at_mut(nc3);
-            let (mean, geo) = geo.split_at_mut(3);
-            let (log_scale, geo) = geo.split_at_mut(2);
-            let (quat, geo) = geo.split_at_mut(4);
-            let (opacity, dens) = geo.split_at_mut(1);
-            let mut slot = SurfelGradSlot {
-                mean: mean.try_into().expect("3"),
-                log_scale: log_scale.try_into().expect("2"),
-                quat: quat.try_into().expect("4"),
-                opacity_logit: &mut opacity[0],
-                sh,
-                mask_sh,
-                obj_logits,
-            };
-            preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut slot);
-            let z = proj.t_w[2];
-            let half = R::from_f64(0.5);
-            dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
-            dens[1] = g.t[5] * z * R::from_f64(s.cam.height as f64) * half;
-        });
+        recs.par_chunks_mut(rs)
+            .zip(s.projs.par_iter())
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(j, (r, proj))| {
+                let mut dprobs = [R::ZERO; MAX_OBJECTS];
+                let dprobs = &mut dprobs[..k];
+                let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
+                let probs = &s.probs[j * k..(j + 1) * k];
+                let (geo, rest) = r.split_at_mut(12);
+                let (sh, rest) = rest.split_at_mut(nc3);
+                let (mask_sh, obj_logits) = rest.split_at_mut(nc3);
+                let (mean, geo) = geo.split_at_mut(3);
+                let (log_scale, geo) = geo.split_at_mut(2);
+                let (quat, geo) = geo.split_at_mut(4);
+                let (opacity, dens) = geo.split_at_mut(1);
+                let mut slot = SurfelGradSlot {
+                    mean: mean.try_into().expect("3"),
+                    log_scale: log_scale.try_into().expect("2"),
+                    quat: quat.try_into().expect("4"),
+                    opacity_logit: &mut opacity[0],
+                    sh,
+                    mask_sh,
+                    obj_logits,
+                };
+                preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut slot);
+                let z = proj.t_w[2];
+                let half = R::from_f64(0.5);
+                dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
+                dens[1] = g.t[5] * z * R::from_f64(s.cam.height as f64) * half;
+            });
         let mut out = ParamsOf::<R>::zeros(n, params.sh_degree(), k);
         let mut densify = vec![[R::ZERO; 2]; n];
         for (proj, r) in s.projs.iter().zip(recs.chunks_exact(rs)) {
@@ -287,7 +309,10 @@ impl<R: Real> Rendered<R> {
             slot.obj_logits.copy_from_slice(&r[12 + 2 * nc3..]);
             densify[i] = [r[10], r[11]];
         }
-        Gradients { params: out, densify }
+        Gradients {
+            params: out,
+            densify,
+        }
     }
 }
 
@@ -326,7 +351,9 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         return Err(RenderError::Near(settings.near));
     }
     let cam = CamR::<R>::new(camera, settings.near);
-    let sh_degree = settings.sh_degree.map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
+    let sh_degree = settings
+        .sh_degree
+        .map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
     let n = params.len();
 
     // Stage 1: preprocess, in parallel, kept in surfel order.
@@ -362,43 +389,78 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         .zip(iblocks.par_chunks_mut(INT_CHANNELS * TILE_PIXELS))
         .enumerate()
         .with_min_len(4)
-        .for_each(|(t, (b, ib))| raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, settings.geometry, b, ib));
+        .for_each(|(t, (b, ib))| {
+            raster_tile(
+                t,
+                &bins,
+                &projs,
+                &probs,
+                &lay,
+                &cam,
+                bg,
+                settings.geometry,
+                b,
+                ib,
+            )
+        });
 
     // Tile blocks → row-major maps.
     let (w, h) = (cam.width as usize, cam.height as usize);
     let tiles_x = cam.tiles_x() as usize;
     let gather = |ch0: usize, nch: usize| -> Vec<R> {
         let mut out = vec![R::ZERO; w * h * nch];
-        out.par_chunks_mut(w * nch).enumerate().for_each(|(y, row)| {
-            let (ty, ly) = (y / TILE as usize, y % TILE as usize);
-            for tx in 0..tiles_x {
-                let x0 = tx * TILE as usize;
-                let nx = (w - x0).min(TILE as usize);
-                let b = &blocks[(ty * tiles_x + tx) * block..];
-                // Channel-planar tile row → pixel-interleaved image row (plain indexing: a
-                // `step_by` iterator here cost a fifth of the forward pass).
-                let src = &b[ch0 * TILE_PIXELS + ly * TILE as usize..];
-                for (lx, px) in row[x0 * nch..(x0 + nx) * nch].chunks_exact_mut(nch).enumerate() {
-                    for (c, d) in px.iter_mut().enumerate() {
-                        *d = src[c * TILE_PIXELS + lx];
+        out.par_chunks_mut(w * nch)
+            .enumerate()
+            .for_each(|(y, row)| {
+                let (ty, ly) = (y / TILE as usize, y % TILE as usize);
+                for tx in 0..tiles_x {
+                    let x0 = tx * TILE as usize;
+                    let nx = (w - x0).min(TILE as usize);
+                    let b = &blocks[(ty * tiles_x + tx) * block..];
+                    // Channel-planar tile row → pixel-interleaved image row (plain indexing: a
+                    // `step_by` iterator here cost a fifth of the forward pass).
+                    let src = &b[ch0 * TILE_PIXELS + ly * TILE as usize..];
+                    for (lx, px) in row[x0 * nch..(x0 + nx) * nch]
+                        .chunks_exact_mut(nch)
+                        .enumerate()
+                    {
+                        for (c, d) in px.iter_mut().enumerate() {
+                            *d = src[c * TILE_PIXELS + lx];
+                        }
                     }
                 }
-            }
-        });
+            });
         out
     };
     let rgb = gather(lay.rgb, 3);
-    let mask = if lay.has_mask { gather(lay.mask, 3) } else { Vec::new() };
-    let objects = if lay.has_objects { gather(lay.obj, k) } else { Vec::new() };
+    let mask = if lay.has_mask {
+        gather(lay.mask, 3)
+    } else {
+        Vec::new()
+    };
+    let objects = if lay.has_objects {
+        gather(lay.obj, k)
+    } else {
+        Vec::new()
+    };
     let alpha = gather(lay.alpha, 1);
     let geometry = settings.geometry == GeometryMaps::Rendered;
-    let maybe = |ch0: usize, nch: usize| if geometry { gather(ch0, nch) } else { Vec::new() };
+    let maybe = |ch0: usize, nch: usize| {
+        if geometry {
+            gather(ch0, nch)
+        } else {
+            Vec::new()
+        }
+    };
     let depth = maybe(lay.depth, 1);
     let median = maybe(lay.median, 1);
     let normal = maybe(lay.normal, 3);
     let distortion = maybe(lay.dist, 1);
     let num_pairs = bins.num_pairs();
-    let pixel_pairs = projs.iter().map(|p| ((p.bbox[2] - p.bbox[0] + 1) * (p.bbox[3] - p.bbox[1] + 1)) as usize).sum();
+    let pixel_pairs = projs
+        .iter()
+        .map(|p| ((p.bbox[2] - p.bbox[0] + 1) * (p.bbox[3] - p.bbox[1] + 1)) as usize)
+        .sum();
     Ok(Rendered {
         width: cam.width,
         height: cam.height,
@@ -414,6 +476,16 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         radii,
         num_pairs,
         pixel_pairs,
-        saved: Saved { cam, settings: *settings, sh_degree, lay, projs, probs, bins, blocks, iblocks },
+        saved: Saved {
+            cam,
+            settings: *settings,
+            sh_degree,
+            lay,
+            projs,
+            probs,
+            bins,
+            blocks,
+            iblocks,
+        },
     })
 }

@@ -16,12 +16,12 @@ use std::sync::atomic::{AtomicU8, Ordering};
 
 use trand_core::Real;
 
+use crate::GeometryMaps;
 use crate::backward::GradMaps;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::layout::Layout;
 use crate::preprocess::Proj;
-use crate::GeometryMaps;
 
 /// Asks the CPU to start loading the cache lines of `*r` (up to 256 bytes): the kernels call it for
 /// the surfel a few places ahead in a tile's list, whose data sits at a random address. A hint only:
@@ -30,7 +30,7 @@ use crate::GeometryMaps;
 pub fn prefetch<T>(r: &T) {
     #[cfg(target_arch = "x86_64")]
     {
-        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
         let p = (r as *const T).cast::<i8>();
         let lines = std::mem::size_of::<T>().div_ceil(64).min(4);
         for l in 0..lines {
@@ -64,7 +64,8 @@ pub fn set_dispatch(d: Dispatch) {
 #[cfg(target_arch = "x86_64")]
 #[inline]
 fn use_avx2() -> bool {
-    DISPATCH.load(Ordering::Relaxed) == Dispatch::Auto as u8 && std::arch::is_x86_feature_detected!("avx2")
+    DISPATCH.load(Ordering::Relaxed) == Dispatch::Auto as u8
+        && std::arch::is_x86_feature_detected!("avx2")
 }
 
 macro_rules! dispatch {

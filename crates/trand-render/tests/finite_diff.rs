@@ -7,7 +7,7 @@
 
 mod common;
 
-use trand_render::{render, Maps, OutputGrads, ParamsOf, RenderSettings, Rendered};
+use trand_render::{Maps, OutputGrads, ParamsOf, RenderSettings, Rendered, render};
 
 #[derive(Clone, Copy, Debug)]
 enum Map {
@@ -57,7 +57,12 @@ fn grads_for(out: &Rendered<f64>, map: Map, cot: Vec<f64>) -> OutputGrads<f64> {
 fn flat_mut(p: &mut ParamsOf<f64>) -> Vec<(&'static str, &mut f64)> {
     let mut v: Vec<(&'static str, &mut f64)> = Vec::new();
     v.extend(p.means.as_flattened_mut().iter_mut().map(|x| ("means", x)));
-    v.extend(p.log_scales.as_flattened_mut().iter_mut().map(|x| ("log_scales", x)));
+    v.extend(
+        p.log_scales
+            .as_flattened_mut()
+            .iter_mut()
+            .map(|x| ("log_scales", x)),
+    );
     v.extend(p.quats.as_flattened_mut().iter_mut().map(|x| ("quats", x)));
     v.extend(p.opacity_logits.iter_mut().map(|x| ("opacity", x)));
     v.extend(p.sh.iter_mut().map(|x| ("sh", x)));
@@ -69,7 +74,11 @@ fn flat_mut(p: &mut ParamsOf<f64>) -> Vec<(&'static str, &mut f64)> {
 fn check_map(map: Map, seed: u64) {
     let cam = common::test_camera(48, 40, 1.2);
     let params = common::random_scene(16, 3, 3, 0.2, seed);
-    let settings = RenderSettings { background: [0.2, 0.5, 0.7], maps: Maps::All, ..Default::default() };
+    let settings = RenderSettings {
+        background: [0.2, 0.5, 0.7],
+        maps: Maps::All,
+        ..Default::default()
+    };
     let out = render::<f64, _>(&params, &cam, &settings).unwrap();
     let len = match map {
         Map::Rgb | Map::Mask | Map::Normal => 48 * 40 * 3,
@@ -77,7 +86,9 @@ fn check_map(map: Map, seed: u64) {
         _ => 48 * 40,
     };
     let cot = common::cotangent(len, seed + 100);
-    let analytic = out.backward(&params, &grads_for(&out, map, cot.clone())).params;
+    let analytic = out
+        .backward(&params, &grads_for(&out, map, cot.clone()))
+        .params;
     let mut an = analytic.clone();
     let an_flat: Vec<f64> = flat_mut(&mut an).into_iter().map(|(_, v)| *v).collect();
     let sig = out.decision_signature();
@@ -106,10 +117,21 @@ fn check_map(map: Map, seed: u64) {
             failures.push(format!("param {k} ({name}): fd {fd:.9e} analytic {a:.9e}"));
         }
     }
-    assert!(failures.is_empty(), "{map:?}: {} of {checked} mismatches:\n{}", failures.len(), failures[..failures.len().min(12)].join("\n"));
-    assert!(checked * 10 >= n_params * 9, "{map:?}: only {checked} of {n_params} parameters checked ({skipped} skipped)");
+    assert!(
+        failures.is_empty(),
+        "{map:?}: {} of {checked} mismatches:\n{}",
+        failures.len(),
+        failures[..failures.len().min(12)].join("\n")
+    );
+    assert!(
+        checked * 10 >= n_params * 9,
+        "{map:?}: only {checked} of {n_params} parameters checked ({skipped} skipped)"
+    );
     // The scene must actually exercise the map.
-    assert!(an_flat.iter().any(|v| v.abs() > 1e-6), "{map:?}: all gradients zero");
+    assert!(
+        an_flat.iter().any(|v| v.abs() > 1e-6),
+        "{map:?}: all gradients zero"
+    );
 }
 
 #[test]

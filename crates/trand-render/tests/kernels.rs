@@ -5,13 +5,13 @@
 mod common;
 
 use rand::{RngExt, SeedableRng};
-use trand_core::{math::logit, sh::rgb_to_dc, surfels::Surfel, Real, Surfels};
+use trand_core::{Real, Surfels, math::logit, sh::rgb_to_dc, surfels::Surfel};
 use trand_render::camera::CamR;
-use trand_render::intersect::{intersect, intersect_lanes, row_columns, Row};
+use trand_render::intersect::{Row, intersect, intersect_lanes, row_columns};
 use trand_render::lanes::{M, V};
-use trand_render::preprocess::{preprocess_one, Proj};
-use trand_render::simd::{set_dispatch, Dispatch};
-use trand_render::{render, GeometryMaps, Maps, OutputGrads, RenderSettings};
+use trand_render::preprocess::{Proj, preprocess_one};
+use trand_render::simd::{Dispatch, set_dispatch};
+use trand_render::{GeometryMaps, Maps, OutputGrads, RenderSettings, render};
 
 /// Surfels of every shape the optimiser produces: tiny to large, round to needle-thin, any tilt
 /// (including nearly edge-on), opacity 0.005 to 0.999.
@@ -36,7 +36,9 @@ fn varied_scene(n: usize, seed: u64) -> Surfels {
 }
 
 fn projections(s: &Surfels, cam: &CamR<f32>) -> Vec<Proj<f32>> {
-    (0..s.len()).filter_map(|i| preprocess_one::<f32, _>(s, i, cam, 0, &mut [0.0; 3])).collect()
+    (0..s.len())
+        .filter_map(|i| preprocess_one::<f32, _>(s, i, cam, 0, &mut [0.0; 3]))
+        .collect()
 }
 
 #[test]
@@ -55,7 +57,13 @@ fn lane_intersection_equals_scalar_intersection_bit_for_bit() {
                     match intersect(p, &row, xs.0[l], cam.near) {
                         Some(s) => {
                             assert!(h.valid.lane(l));
-                            for (a, b) in [(h.u, s.u), (h.v, s.v), (h.z, s.z), (h.g, s.g), (h.alpha, s.alpha)] {
+                            for (a, b) in [
+                                (h.u, s.u),
+                                (h.v, s.v),
+                                (h.z, s.z),
+                                (h.g, s.g),
+                                (h.alpha, s.alpha),
+                            ] {
                                 assert_eq!(a.0[l].to_bits(), b.to_bits());
                             }
                             assert_eq!(h.object_space.lane(l), s.object_space);
@@ -92,14 +100,20 @@ fn row_cut_keeps_every_pixel_the_alpha_gate_passes() {
                     cut_away += usize::from(!inside);
                     if intersect(p, &row, x as f32, cam.near).is_some() {
                         hits += 1;
-                        assert!(inside, "pixel ({x}, {y}) passes the alpha gate but the cut {cols:?} drops it");
+                        assert!(
+                            inside,
+                            "pixel ({x}, {y}) passes the alpha gate but the cut {cols:?} drops it"
+                        );
                     }
                 }
             }
         }
         assert!(hits > 1000, "seed {seed}: only {hits} hits");
         // The cut must also do its job: a good share of the boxes' pixels is skipped.
-        assert!(cut_away * 5 > boxed, "seed {seed}: cut removed {cut_away} of {boxed}");
+        assert!(
+            cut_away * 5 > boxed,
+            "seed {seed}: cut removed {cut_away} of {boxed}"
+        );
     }
 }
 
@@ -107,7 +121,11 @@ fn row_cut_keeps_every_pixel_the_alpha_gate_passes() {
 fn avx2_and_baseline_kernels_return_identical_bits() {
     let camera = common::test_camera(160, 120, 0.9);
     let s = varied_scene(1500, 5);
-    let settings = RenderSettings { maps: Maps::All, background: [0.1, 0.2, 0.3], ..Default::default() };
+    let settings = RenderSettings {
+        maps: Maps::All,
+        background: [0.1, 0.2, 0.3],
+        ..Default::default()
+    };
     let run = |d: Dispatch| {
         set_dispatch(d);
         let out = render::<f32, _>(&s, &camera, &settings).unwrap();
@@ -123,12 +141,25 @@ fn avx2_and_baseline_kernels_return_identical_bits() {
         };
         let grads = out.backward(&s, &g);
         set_dispatch(Dispatch::Auto);
-        let mut v: Vec<u32> = [&out.rgb, &out.mask, &out.objects, &out.depth, &out.median, &out.distortion]
-            .iter()
-            .flat_map(|m| m.iter().map(|x| x.to_bits()))
-            .collect();
+        let mut v: Vec<u32> = [
+            &out.rgb,
+            &out.mask,
+            &out.objects,
+            &out.depth,
+            &out.median,
+            &out.distortion,
+        ]
+        .iter()
+        .flat_map(|m| m.iter().map(|x| x.to_bits()))
+        .collect();
         let p = &grads.params;
-        for m in [p.means.as_flattened(), p.quats.as_flattened(), &p.opacity_logits, &p.sh, &p.obj_logits] {
+        for m in [
+            p.means.as_flattened(),
+            p.quats.as_flattened(),
+            &p.opacity_logits,
+            &p.sh,
+            &p.obj_logits,
+        ] {
             v.extend(m.iter().map(|x| x.to_bits()));
         }
         v
@@ -143,7 +174,12 @@ fn skipping_the_geometric_maps_changes_no_other_output_or_gradient() {
     let camera = common::test_camera(128, 96, 0.8);
     let s = varied_scene(1200, 8);
     let run = |geometry: GeometryMaps| {
-        let settings = RenderSettings { maps: Maps::All, background: [0.3, 0.2, 0.1], geometry, ..Default::default() };
+        let settings = RenderSettings {
+            maps: Maps::All,
+            background: [0.3, 0.2, 0.1],
+            geometry,
+            ..Default::default()
+        };
         let out = render::<f32, _>(&s, &camera, &settings).unwrap();
         let n = out.alpha.len();
         let g = OutputGrads {
@@ -158,12 +194,22 @@ fn skipping_the_geometric_maps_changes_no_other_output_or_gradient() {
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let p = &grads.params;
         let maps = [&out.rgb, &out.mask, &out.objects, &out.alpha].map(|m| bits(m));
-        let gr = [p.means.as_flattened(), p.quats.as_flattened(), p.log_scales.as_flattened(), &p.opacity_logits, &p.sh, &p.obj_logits]
-            .map(bits);
+        let gr = [
+            p.means.as_flattened(),
+            p.quats.as_flattened(),
+            p.log_scales.as_flattened(),
+            &p.opacity_logits,
+            &p.sh,
+            &p.obj_logits,
+        ]
+        .map(bits);
         (maps, gr, out.depth.len(), out.median.len())
     };
     let (full, skipped) = (run(GeometryMaps::Rendered), run(GeometryMaps::Skipped));
     assert!(full.0 == skipped.0, "rgb/mask/objects/alpha differ");
     assert!(full.1 == skipped.1, "gradients differ");
-    assert!(full.2 > 0 && skipped.2 == 0 && skipped.3 == 0, "skipped maps come back empty");
+    assert!(
+        full.2 > 0 && skipped.2 == 0 && skipped.3 == 0,
+        "skipped maps come back empty"
+    );
 }

@@ -3,9 +3,9 @@
 mod common;
 
 use glam::DVec3;
-use trand_core::{math::logit, sh::rgb_to_dc, Camera, Intrinsics, Surfels};
 use trand_core::surfels::Surfel;
-use trand_render::{render, Maps, ParamsOf, RenderError, RenderSettings};
+use trand_core::{Camera, Intrinsics, Surfels, math::logit, sh::rgb_to_dc};
+use trand_render::{Maps, ParamsOf, RenderError, RenderSettings, render};
 
 fn surfel(mean: [f32; 3], scale: f32, quat: [f32; 4], opacity: f32) -> Surfel {
     Surfel {
@@ -21,16 +21,31 @@ fn surfel(mean: [f32; 3], scale: f32, quat: [f32; 4], opacity: f32) -> Surfel {
 
 fn front_camera(w: u32, h: u32, f: f64) -> Camera {
     // At (0, 0, 1) looking down −z (world), so the surfel plane z = 0 is 1 m away.
-    Camera::look_at(Intrinsics::centered(f, w, h), DVec3::new(0.0, 0.0, 1.0), DVec3::ZERO, DVec3::Y)
+    Camera::look_at(
+        Intrinsics::centered(f, w, h),
+        DVec3::new(0.0, 0.0, 1.0),
+        DVec3::ZERO,
+        DVec3::Y,
+    )
 }
 
 #[test]
 fn tilted_surfel_depth_equals_ray_plane_intersection() {
-    let cam = Camera::look_at(Intrinsics::centered(200.0, 64, 48), DVec3::new(0.2, -0.3, 1.1), DVec3::ZERO, DVec3::Z);
+    let cam = Camera::look_at(
+        Intrinsics::centered(200.0, 64, 48),
+        DVec3::new(0.2, -0.3, 1.1),
+        DVec3::ZERO,
+        DVec3::Z,
+    );
     // Normal tilted ~35° from the z axis; large and opaque so it covers the image centre.
     let q = glam::DQuat::from_axis_angle(DVec3::new(1.0, 0.4, 0.0).normalize(), 0.6);
     let mut s = Surfels::new(0, 1).unwrap();
-    s.push(&surfel([0.0, 0.0, 0.0], 0.5, [q.w as f32, q.x as f32, q.y as f32, q.z as f32], 0.99));
+    s.push(&surfel(
+        [0.0, 0.0, 0.0],
+        0.5,
+        [q.w as f32, q.x as f32, q.y as f32, q.z as f32],
+        0.99,
+    ));
     let out = render::<f64, _>(&s, &cam, &RenderSettings::default()).unwrap();
     // The surfel stores its quaternion in f32: take the plane from exactly that rotation.
     let qs = s.quats[0].map(f64::from);
@@ -44,8 +59,16 @@ fn tilted_surfel_depth_equals_ray_plane_intersection() {
         let d = cam.ray_direction(px as f64, py as f64);
         let t = -normal.dot(c) / normal.dot(d);
         let z = cam.world_to_camera(c + d * t).z;
-        assert!((out.median[i] - z).abs() < 1e-9, "median {} vs ray-plane {z}", out.median[i]);
-        assert!((exp_depth[i] - z).abs() < 1e-9, "expected {} vs ray-plane {z}", exp_depth[i]);
+        assert!(
+            (out.median[i] - z).abs() < 1e-9,
+            "median {} vs ray-plane {z}",
+            out.median[i]
+        );
+        assert!(
+            (exp_depth[i] - z).abs() < 1e-9,
+            "expected {} vs ray-plane {z}",
+            exp_depth[i]
+        );
         checked += 1;
     }
     assert_eq!(checked, 4);
@@ -57,29 +80,57 @@ fn fronto_parallel_footprint_matches_scale_and_distance() {
     let cam = front_camera(65, 65, f);
     let mut s = Surfels::new(0, 1).unwrap();
     let o = 0.8;
-    s.push(&surfel([0.0, 0.0, 0.0], s_world as f32, [1.0, 0.0, 0.0, 0.0], o as f32));
+    s.push(&surfel(
+        [0.0, 0.0, 0.0],
+        s_world as f32,
+        [1.0, 0.0, 0.0, 0.0],
+        o as f32,
+    ));
     let out = render::<f64, _>(&s, &cam, &RenderSettings::default()).unwrap();
     // σ in pixels = f·s/z = 4 px; α(r) = o·exp(−r²/2σ²) while the object-space kernel dominates.
     let sigma = f * s_world / 1.0;
     for r in [0usize, 2, 4, 6, 8] {
         let a = out.alpha[32 * 65 + 32 + r];
         let expected = o * (-(r as f64).powi(2) / (2.0 * sigma * sigma)).exp();
-        let expected = if expected < 1.0 / 255.0 { 0.0 } else { expected };
-        assert!((a - expected).abs() < 1e-6 * (f32::EPSILON as f64).recip().min(1.0) + 2e-6, "r={r}: alpha {a} vs {expected}");
+        let expected = if expected < 1.0 / 255.0 {
+            0.0
+        } else {
+            expected
+        };
+        assert!(
+            (a - expected).abs() < 1e-6 * (f32::EPSILON as f64).recip().min(1.0) + 2e-6,
+            "r={r}: alpha {a} vs {expected}"
+        );
     }
 }
 
 #[test]
 fn projected_point_lands_on_the_pixel_the_convention_says() {
-    let cam = Camera::look_at(Intrinsics::centered(300.0, 80, 60), DVec3::new(0.3, 0.2, 0.9), DVec3::ZERO, DVec3::Z);
+    let cam = Camera::look_at(
+        Intrinsics::centered(300.0, 80, 60),
+        DVec3::new(0.3, 0.2, 0.9),
+        DVec3::ZERO,
+        DVec3::Z,
+    );
     for p in [DVec3::new(0.05, -0.03, 0.02), DVec3::new(-0.1, 0.04, 0.0)] {
         let (x, y, _) = cam.project(p).unwrap();
         let mut s = Surfels::new(0, 1).unwrap();
-        s.push(&surfel(p.as_vec3().to_array(), 1e-4, [1.0, 0.0, 0.0, 0.0], 0.9));
+        s.push(&surfel(
+            p.as_vec3().to_array(),
+            1e-4,
+            [1.0, 0.0, 0.0, 0.0],
+            0.9,
+        ));
         let out = render::<f64, _>(&s, &cam, &RenderSettings::default()).unwrap();
-        let best = (0..out.alpha.len()).max_by(|&a, &b| out.alpha[a].total_cmp(&out.alpha[b])).unwrap();
+        let best = (0..out.alpha.len())
+            .max_by(|&a, &b| out.alpha[a].total_cmp(&out.alpha[b]))
+            .unwrap();
         let (bx, by) = ((best % 80) as f64, (best / 80) as f64);
-        assert_eq!((bx, by), (x.round(), y.round()), "projected ({x:.2}, {y:.2})");
+        assert_eq!(
+            (bx, by),
+            (x.round(), y.round()),
+            "projected ({x:.2}, {y:.2})"
+        );
     }
 }
 
@@ -88,17 +139,36 @@ fn empty_scene_renders_the_background() {
     let cam = common::test_camera(40, 30, 1.0);
     let s = Surfels::new(0, 3).unwrap();
     let bg = [0.1, 0.6, 0.3];
-    let out = render::<f32, _>(&s, &cam, &RenderSettings { background: bg, maps: Maps::All, ..Default::default() }).unwrap();
+    let out = render::<f32, _>(
+        &s,
+        &cam,
+        &RenderSettings {
+            background: bg,
+            maps: Maps::All,
+            ..Default::default()
+        },
+    )
+    .unwrap();
     assert!(out.rgb.chunks(3).all(|c| c == bg));
     assert!(out.mask.chunks(3).all(|c| c == bg));
-    assert!(out.alpha.iter().chain(&out.depth).chain(&out.median).chain(&out.objects).all(|&v| v == 0.0));
+    assert!(
+        out.alpha
+            .iter()
+            .chain(&out.depth)
+            .chain(&out.median)
+            .chain(&out.objects)
+            .all(|&v| v == 0.0)
+    );
 }
 
 #[test]
 fn surfels_behind_camera_or_off_screen_change_nothing() {
     let cam = common::test_camera(48, 40, 1.2);
     let base = common::random_scene(12, 1, 2, 0.2, 11);
-    let settings = RenderSettings { maps: Maps::All, ..Default::default() };
+    let settings = RenderSettings {
+        maps: Maps::All,
+        ..Default::default()
+    };
     let a = render::<f64, _>(&base, &cam, &settings).unwrap();
     let mut extra = base.clone();
     let c = cam.center();
@@ -136,11 +206,22 @@ fn results_are_bit_identical_for_any_thread_count() {
     let p64 = common::random_scene(3000, 1, 4, 0.25, 5);
     let mut s = Surfels::new(1, 4).unwrap();
     for i in 0..p64.means.len() {
-        s.push(&surfel(p64.means[i].map(|v| v as f32), 0.01, p64.quats[i].map(|v| v as f32), 0.6));
+        s.push(&surfel(
+            p64.means[i].map(|v| v as f32),
+            0.01,
+            p64.quats[i].map(|v| v as f32),
+            0.6,
+        ));
     }
-    let settings = RenderSettings { maps: Maps::All, ..Default::default() };
+    let settings = RenderSettings {
+        maps: Maps::All,
+        ..Default::default()
+    };
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let out = render::<f32, _>(&s, &cam, &settings).unwrap();
             let n = out.rgb.len();
@@ -158,7 +239,10 @@ fn results_are_bit_identical_for_any_thread_count() {
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(bits(&a.0), bits(&b.0));
     assert_eq!(bits(&a.1), bits(&b.1));
-    assert_eq!(bits(a.2.means.as_flattened()), bits(b.2.means.as_flattened()));
+    assert_eq!(
+        bits(a.2.means.as_flattened()),
+        bits(b.2.means.as_flattened())
+    );
     assert_eq!(bits(&a.2.obj_logits), bits(&b.2.obj_logits));
     assert_eq!(bits(a.3.as_flattened()), bits(b.3.as_flattened()));
     assert!(a.2.means.as_flattened().iter().any(|&v| v != 0.0));
@@ -178,7 +262,13 @@ fn nan_and_degenerate_surfels_never_poison_the_image() {
     let out = render::<f64, _>(&bad, &cam, &RenderSettings::default()).unwrap();
     assert_eq!(out.rgb, clean.rgb);
     assert!(out.rgb.iter().all(|v| v.is_finite()));
-    let g = out.backward(&bad, &trand_render::OutputGrads { rgb: Some(vec![1.0; out.rgb.len()]), ..Default::default() });
+    let g = out.backward(
+        &bad,
+        &trand_render::OutputGrads {
+            rgb: Some(vec![1.0; out.rgb.len()]),
+            ..Default::default()
+        },
+    );
     assert!(g.params.means.as_flattened().iter().all(|v| v.is_finite()));
 }
 
@@ -187,13 +277,22 @@ fn degenerate_camera_is_a_clear_error() {
     let s = Surfels::new(0, 1).unwrap();
     let mut cam = common::test_camera(48, 40, 1.0);
     cam.intrinsics.fx = 0.0;
-    assert!(matches!(render::<f32, _>(&s, &cam, &RenderSettings::default()), Err(RenderError::Camera(_))));
+    assert!(matches!(
+        render::<f32, _>(&s, &cam, &RenderSettings::default()),
+        Err(RenderError::Camera(_))
+    ));
     let mut cam = common::test_camera(48, 40, 1.0);
     cam.intrinsics.height = 0;
-    assert!(matches!(render::<f32, _>(&s, &cam, &RenderSettings::default()), Err(RenderError::Camera(_))));
+    assert!(matches!(
+        render::<f32, _>(&s, &cam, &RenderSettings::default()),
+        Err(RenderError::Camera(_))
+    ));
     let s = Surfels::new(0, 65).unwrap();
     let cam = common::test_camera(48, 40, 1.0);
-    assert_eq!(render::<f32, _>(&s, &cam, &RenderSettings::default()).unwrap_err(), RenderError::Objects(65));
+    assert_eq!(
+        render::<f32, _>(&s, &cam, &RenderSettings::default()).unwrap_err(),
+        RenderError::Objects(65)
+    );
 }
 
 #[test]
@@ -202,10 +301,20 @@ fn f32_render_agrees_with_f64_render() {
     let p = common::random_scene(200, 2, 3, 0.25, 31);
     let mut s = Surfels::new(2, 3).unwrap();
     for i in 0..200 {
-        s.push(&surfel(p.means[i].map(|v| v as f32), (p.log_scales[i][0].exp()) as f32, p.quats[i].map(|v| v as f32), 0.7));
+        s.push(&surfel(
+            p.means[i].map(|v| v as f32),
+            (p.log_scales[i][0].exp()) as f32,
+            p.quats[i].map(|v| v as f32),
+            0.7,
+        ));
     }
     let a = render::<f32, _>(&s, &cam, &RenderSettings::default()).unwrap();
     let b = render::<f64, _>(&s, &cam, &RenderSettings::default()).unwrap();
-    let err = a.rgb.iter().zip(&b.rgb).map(|(x, y)| (*x as f64 - y).abs()).fold(0.0, f64::max);
+    let err = a
+        .rgb
+        .iter()
+        .zip(&b.rgb)
+        .map(|(x, y)| (*x as f64 - y).abs())
+        .fold(0.0, f64::max);
     assert!(err < 1e-3, "f32 vs f64 rgb differ by {err}");
 }

@@ -87,14 +87,26 @@ pub fn camera_entry(cam: &Camera) -> CameraEntry {
 
 /// Model-to-world rotation as f64.
 pub fn pose_rotation(p: &Pose) -> DMat3 {
-    DMat3::from_quat(DQuat::from_xyzw(p.rotation.x as f64, p.rotation.y as f64, p.rotation.z as f64, p.rotation.w as f64).normalize())
+    DMat3::from_quat(
+        DQuat::from_xyzw(
+            p.rotation.x as f64,
+            p.rotation.y as f64,
+            p.rotation.z as f64,
+            p.rotation.w as f64,
+        )
+        .normalize(),
+    )
 }
 
 /// `scene_gt` entry: `R_m2c = R_w2c R_m2w`, `t_m2c = R_w2c t_m2w + t_w2c` (mm).
 pub fn gt_entry(cam: &Camera, obj_id: u32, pose: &Pose) -> GtEntry {
     let r = cam.rotation() * pose_rotation(pose);
     let t = cam.rotation() * pose.translation.as_dvec3() + cam.translation();
-    GtEntry { obj_id, cam_r_m2c: row_major(r), cam_t_m2c: (t * 1000.0).to_array().map(|v| round(v, 6)) }
+    GtEntry {
+        obj_id,
+        cam_r_m2c: row_major(r),
+        cam_t_m2c: (t * 1000.0).to_array().map(|v| round(v, 6)),
+    }
 }
 
 /// Visible pixel count and bounding box of `obj_id` in an id image.
@@ -109,16 +121,35 @@ pub fn gt_info_entry(img: &ViewImages, obj_id: u32) -> GtInfoEntry {
         x1 = x1.max(x);
         y1 = y1.max(y);
     }
-    let bbox_visib = if n == 0 { [-1; 4] } else { [x0 as i64, y0 as i64, (x1 - x0 + 1) as i64, (y1 - y0 + 1) as i64] };
-    GtInfoEntry { obj_id, px_count_visib: n, bbox_visib }
+    let bbox_visib = if n == 0 {
+        [-1; 4]
+    } else {
+        [
+            x0 as i64,
+            y0 as i64,
+            (x1 - x0 + 1) as i64,
+            (y1 - y0 + 1) as i64,
+        ]
+    };
+    GtInfoEntry {
+        obj_id,
+        px_count_visib: n,
+        bbox_visib,
+    }
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError + '_ {
-    move |source| SynthError::Io { path: path.to_path_buf(), source }
+    move |source| SynthError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 fn png_err(path: &Path) -> impl FnOnce(image::ImageError) -> SynthError + '_ {
-    move |source| SynthError::Png { path: path.to_path_buf(), source }
+    move |source| SynthError::Png {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 /// Creates `rgb/`, `depth/`, `mask_visib/` under a split folder.
@@ -131,16 +162,27 @@ pub fn create_split_dirs(split: &Path) -> Result<(), SynthError> {
 }
 
 /// Writes one view's RGB, depth and one mask per object id in `present`.
-pub fn write_view(split: &Path, frame: u32, img: &ViewImages, present: &[u32]) -> Result<(), SynthError> {
+pub fn write_view(
+    split: &Path,
+    frame: u32,
+    img: &ViewImages,
+    present: &[u32],
+) -> Result<(), SynthError> {
     let (w, h) = (img.width, img.height);
     let p = split.join(format!("rgb/{frame:06}.png"));
     image::save_buffer(&p, &img.rgb, w, h, image::ExtendedColorType::Rgb8).map_err(png_err(&p))?;
     let p = split.join(format!("depth/{frame:06}.png"));
-    let depth = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, img.depth_mm.clone()).expect("depth buffer has w*h pixels");
+    let depth =
+        image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(w, h, img.depth_mm.clone())
+            .expect("depth buffer has w*h pixels");
     depth.save(&p).map_err(png_err(&p))?;
     for &id in present {
         let p = split.join(format!("mask_visib/{frame:06}_{id:06}.png"));
-        let mask: Vec<u8> = img.ids.iter().map(|&v| if v == id { 255 } else { 0 }).collect();
+        let mask: Vec<u8> = img
+            .ids
+            .iter()
+            .map(|&v| if v == id { 255 } else { 0 })
+            .collect();
         image::save_buffer(&p, &mask, w, h, image::ExtendedColorType::L8).map_err(png_err(&p))?;
     }
     Ok(())
@@ -150,8 +192,16 @@ pub fn write_view(split: &Path, frame: u32, img: &ViewImages, present: &[u32]) -
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), SynthError> {
     let f = std::fs::File::create(path).map_err(io_err(path))?;
     let mut w = std::io::BufWriter::new(f);
-    let mut ser = serde_json::Serializer::with_formatter(&mut w, serde_json::ser::PrettyFormatter::with_indent(b" "));
-    value.serialize(&mut ser).map_err(|source| SynthError::Json { path: path.to_path_buf(), source })?;
+    let mut ser = serde_json::Serializer::with_formatter(
+        &mut w,
+        serde_json::ser::PrettyFormatter::with_indent(b" "),
+    );
+    value
+        .serialize(&mut ser)
+        .map_err(|source| SynthError::Json {
+            path: path.to_path_buf(),
+            source,
+        })?;
     w.write_all(b"\n").map_err(io_err(path))?;
     w.flush().map_err(io_err(path))
 }
@@ -168,7 +218,10 @@ pub fn write_ply(path: &Path, mesh: &Mesh) -> Result<(), SynthError> {
     ));
     for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
         let p = *p * 1000.0;
-        body.push_str(&format!("{:.4} {:.4} {:.4} {:.5} {:.5} {:.5}\n", p.x, p.y, p.z, n.x, n.y, n.z));
+        body.push_str(&format!(
+            "{:.4} {:.4} {:.4} {:.5} {:.5} {:.5}\n",
+            p.x, p.y, p.z, n.x, n.y, n.z
+        ));
     }
     for t in &mesh.triangles {
         body.push_str(&format!("3 {} {} {}\n", t[0], t[1], t[2]));
@@ -201,7 +254,15 @@ pub fn model_info(mesh: &Mesh) -> ModelInfo {
         }
     }
     let (lo, size) = (lo.as_dvec3() * 1000.0, (hi - lo).as_dvec3() * 1000.0);
-    ModelInfo { diameter: round(diam * 1000.0, 4), min_x: round(lo.x, 4), min_y: round(lo.y, 4), min_z: round(lo.z, 4), size_x: round(size.x, 4), size_y: round(size.y, 4), size_z: round(size.z, 4) }
+    ModelInfo {
+        diameter: round(diam * 1000.0, 4),
+        min_x: round(lo.x, 4),
+        min_y: round(lo.y, 4),
+        min_z: round(lo.z, 4),
+        size_x: round(size.x, 4),
+        size_y: round(size.y, 4),
+        size_z: round(size.z, 4),
+    }
 }
 
 /// A split folder path inside the output folder.

@@ -29,7 +29,11 @@ pub struct Tri {
 
 impl Tri {
     pub fn new(a: Vec3, b: Vec3, c: Vec3) -> Self {
-        Self { v0: a, e1: b - a, e2: c - a }
+        Self {
+            v0: a,
+            e1: b - a,
+            e2: c - a,
+        }
     }
 
     /// Möller–Trumbore: returns `(t, u, v)` with the hit point `v0 + u·e1 + v·e2 = o + t·d`.
@@ -64,7 +68,10 @@ struct Aabb {
 }
 
 impl Aabb {
-    const EMPTY: Aabb = Aabb { lo: Vec3A::splat(f32::INFINITY), hi: Vec3A::splat(f32::NEG_INFINITY) };
+    const EMPTY: Aabb = Aabb {
+        lo: Vec3A::splat(f32::INFINITY),
+        hi: Vec3A::splat(f32::NEG_INFINITY),
+    };
     fn grow(&mut self, p: Vec3) {
         self.lo = self.lo.min(p.into());
         self.hi = self.hi.max(p.into());
@@ -115,14 +122,20 @@ pub struct Bvh {
 
 impl Bvh {
     pub fn build(tris: Vec<Tri>) -> Self {
-        let bounds: Vec<Aabb> = tris.iter().map(|t| {
-            let mut b = Aabb::EMPTY;
-            for p in [t.v0, t.v0 + t.e1, t.v0 + t.e2] {
-                b.grow(p);
-            }
-            b
-        }).collect();
-        let centroids: Vec<Vec3> = bounds.iter().map(|b| Vec3::from(0.5 * (b.lo + b.hi))).collect();
+        let bounds: Vec<Aabb> = tris
+            .iter()
+            .map(|t| {
+                let mut b = Aabb::EMPTY;
+                for p in [t.v0, t.v0 + t.e1, t.v0 + t.e2] {
+                    b.grow(p);
+                }
+                b
+            })
+            .collect();
+        let centroids: Vec<Vec3> = bounds
+            .iter()
+            .map(|b| Vec3::from(0.5 * (b.lo + b.hi)))
+            .collect();
         let mut order: Vec<u32> = (0..tris.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * tris.len().max(1));
         if !tris.is_empty() {
@@ -160,7 +173,9 @@ impl Bvh {
         loop {
             let n = &self.nodes[node as usize];
             if n.count > 0 {
-                for &ti in &self.order[n.start_or_right as usize..(n.start_or_right + n.count) as usize] {
+                for &ti in
+                    &self.order[n.start_or_right as usize..(n.start_or_right + n.count) as usize]
+                {
                     if let Some((t, u, v)) = self.tris[ti as usize].intersect(o, d, t_best) {
                         t_best = t;
                         best = Some(Hit { t, tri: ti, u, v });
@@ -196,7 +211,11 @@ impl Bvh {
                 }
                 sp -= 1;
                 node = stack[sp];
-                if self.nodes[node as usize].bounds.hit(oa, inv_d, t_best).is_some() {
+                if self.nodes[node as usize]
+                    .bounds
+                    .hit(oa, inv_d, t_best)
+                    .is_some()
+                {
                     break;
                 }
             }
@@ -204,7 +223,14 @@ impl Bvh {
     }
 }
 
-fn build_rec(nodes: &mut Vec<Node>, order: &mut [u32], start: usize, end: usize, bounds: &[Aabb], centroids: &[Vec3]) -> usize {
+fn build_rec(
+    nodes: &mut Vec<Node>,
+    order: &mut [u32],
+    start: usize,
+    end: usize,
+    bounds: &[Aabb],
+    centroids: &[Vec3],
+) -> usize {
     let idx = nodes.len();
     let mut bb = Aabb::EMPTY;
     let mut cb = Aabb::EMPTY;
@@ -212,14 +238,24 @@ fn build_rec(nodes: &mut Vec<Node>, order: &mut [u32], start: usize, end: usize,
         bb.merge(&bounds[i as usize]);
         cb.grow(centroids[i as usize]);
     }
-    nodes.push(Node { bounds: bb, start_or_right: start as u32, count: (end - start) as u32 });
+    nodes.push(Node {
+        bounds: bb,
+        start_or_right: start as u32,
+        count: (end - start) as u32,
+    });
     let n = end - start;
     if n <= 2 {
         return idx;
     }
     // Binned SAH over the three axes.
     let mut best: Option<(f32, usize, usize)> = None; // (cost, axis, split bin)
-    for (axis, (lo, hi)) in cb.lo.to_array().into_iter().zip(cb.hi.to_array()).enumerate() {
+    for (axis, (lo, hi)) in cb
+        .lo
+        .to_array()
+        .into_iter()
+        .zip(cb.hi.to_array())
+        .enumerate()
+    {
         if hi - lo < 1e-9 {
             continue;
         }
@@ -248,13 +284,17 @@ fn build_rec(nodes: &mut Vec<Node>, order: &mut [u32], start: usize, end: usize,
             if cnt == 0 || right_n[b + 1] == 0 {
                 continue;
             }
-            let cost = TRAVERSAL_COST + (acc.area() * cnt as f32 + right_area[b + 1] * right_n[b + 1] as f32) / bb.area().max(1e-30);
+            let cost = TRAVERSAL_COST
+                + (acc.area() * cnt as f32 + right_area[b + 1] * right_n[b + 1] as f32)
+                    / bb.area().max(1e-30);
             if best.is_none_or(|(c, _, _)| cost < c) {
                 best = Some((cost, axis, b + 1));
             }
         }
     }
-    let Some((cost, axis, split)) = best else { return idx };
+    let Some((cost, axis, split)) = best else {
+        return idx;
+    };
     if cost >= n as f32 && n <= MAX_LEAF {
         return idx;
     }
@@ -285,17 +325,27 @@ mod tests {
     fn bvh_closest_hit_equals_brute_force() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
         let mut r = |a: f32, b: f32| rng.random_range(a..b);
-        let tris: Vec<Tri> = (0..2000).map(|_| {
-            let c = Vec3::new(r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0));
-            let s = 0.08;
-            Tri::new(c, c + Vec3::new(r(-s, s), r(-s, s), r(-s, s)), c + Vec3::new(r(-s, s), r(-s, s), r(-s, s)))
-        }).collect();
+        let tris: Vec<Tri> = (0..2000)
+            .map(|_| {
+                let c = Vec3::new(r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0));
+                let s = 0.08;
+                Tri::new(
+                    c,
+                    c + Vec3::new(r(-s, s), r(-s, s), r(-s, s)),
+                    c + Vec3::new(r(-s, s), r(-s, s), r(-s, s)),
+                )
+            })
+            .collect();
         let bvh = Bvh::build(tris.clone());
         let mut hits = 0;
         for _ in 0..2000 {
             let o = Vec3::new(r(-2.0, 2.0), r(-2.0, 2.0), 3.0);
             let d = (Vec3::new(r(-1.0, 1.0), r(-1.0, 1.0), r(-1.0, 1.0)) - o).normalize();
-            let brute = tris.iter().enumerate().filter_map(|(i, t)| t.intersect(o, d, f32::INFINITY).map(|h| (h.0, i))).min_by(|a, b| a.0.total_cmp(&b.0));
+            let brute = tris
+                .iter()
+                .enumerate()
+                .filter_map(|(i, t)| t.intersect(o, d, f32::INFINITY).map(|h| (h.0, i)))
+                .min_by(|a, b| a.0.total_cmp(&b.0));
             let got = bvh.closest(o, d, f32::INFINITY);
             assert_eq!(brute.map(|b| b.1 as u32), got.map(|h| h.tri));
             hits += got.is_some() as usize;

@@ -41,19 +41,47 @@ pub struct RingInfo {
 }
 
 /// Camera on a sphere around `target`: azimuth from +x towards +y, elevation above the table.
-pub fn orbit(k: Intrinsics, target: DVec3, azimuth_deg: f64, elevation_deg: f64, distance: f64) -> Camera {
+pub fn orbit(
+    k: Intrinsics,
+    target: DVec3,
+    azimuth_deg: f64,
+    elevation_deg: f64,
+    distance: f64,
+) -> Camera {
     let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
     let eye = target + distance * DVec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
     Camera::look_at(k, eye, target, DVec3::Z)
 }
 
 /// Bird's-eye view plus the 12-view ring.
-pub fn train_views(k: Intrinsics, centre: DVec3, rng: &mut impl rand::Rng) -> (Vec<Camera>, RingInfo) {
-    let top = Camera::look_at(k, centre + DVec3::new(0.0, 0.0, BIRDSEYE_HEIGHT_M), centre, DVec3::Y);
+pub fn train_views(
+    k: Intrinsics,
+    centre: DVec3,
+    rng: &mut impl rand::Rng,
+) -> (Vec<Camera>, RingInfo) {
+    let top = Camera::look_at(
+        k,
+        centre + DVec3::new(0.0, 0.0, BIRDSEYE_HEIGHT_M),
+        centre,
+        DVec3::Y,
+    );
     let az0: f64 = rng.random_range(0.0..360.0);
     let mut cams = vec![top];
-    cams.extend((0..RING_VIEWS).map(|i| orbit(k, centre, az0 + 30.0 * i as f64, RING_ELEVATION_DEG, RING_DISTANCE_M)));
-    let info = RingInfo { birdseye_height_m: BIRDSEYE_HEIGHT_M, ring_azimuth0_deg: az0, ring_elevation_deg: RING_ELEVATION_DEG, ring_distance_m: RING_DISTANCE_M };
+    cams.extend((0..RING_VIEWS).map(|i| {
+        orbit(
+            k,
+            centre,
+            az0 + 30.0 * i as f64,
+            RING_ELEVATION_DEG,
+            RING_DISTANCE_M,
+        )
+    }));
+    let info = RingInfo {
+        birdseye_height_m: BIRDSEYE_HEIGHT_M,
+        ring_azimuth0_deg: az0,
+        ring_elevation_deg: RING_ELEVATION_DEG,
+        ring_distance_m: RING_DISTANCE_M,
+    };
     (cams, info)
 }
 
@@ -65,7 +93,12 @@ pub fn test_views(k: Intrinsics, centre: DVec3, n: u32, rng: &mut impl rand::Rng
             let el = rng.random_range(TEST_ELEVATION_DEG.0..TEST_ELEVATION_DEG.1);
             let dist = rng.random_range(TEST_DISTANCE_M.0..TEST_DISTANCE_M.1);
             let j = TEST_TARGET_JITTER_M;
-            let target = centre + DVec3::new(rng.random_range(-j[0]..j[0]), rng.random_range(-j[1]..j[1]), rng.random_range(-j[2]..j[2]));
+            let target = centre
+                + DVec3::new(
+                    rng.random_range(-j[0]..j[0]),
+                    rng.random_range(-j[1]..j[1]),
+                    rng.random_range(-j[2]..j[2]),
+                );
             orbit(k, target, az, el, dist)
         })
         .collect()
@@ -82,9 +115,15 @@ mod tests {
         let (cams, _) = train_views(intrinsics(640, 480), DVec3::new(0.01, 0.02, 0.03), &mut rng);
         let r = cams[0].rotation();
         let want = glam::DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
-        assert!((r - want).to_cols_array().iter().all(|v| v.abs() < 1e-12), "{r:?}");
+        assert!(
+            (r - want).to_cols_array().iter().all(|v| v.abs() < 1e-12),
+            "{r:?}"
+        );
         assert_eq!(cams.len(), 13);
-        assert!((cams[0].intrinsics.cx - 319.5).abs() < 1e-12 && (cams[0].intrinsics.fx - 600.0).abs() < 1e-12);
+        assert!(
+            (cams[0].intrinsics.cx - 319.5).abs() < 1e-12
+                && (cams[0].intrinsics.fx - 600.0).abs() < 1e-12
+        );
     }
 
     #[test]

@@ -12,11 +12,23 @@ pub enum SynthError {
     #[error("output path {path} exists and is not a folder")]
     OutputNotADirectory { path: PathBuf },
     #[error("cannot create the output next to {path} (is the parent folder writable?)")]
-    OutputUnwritable { path: PathBuf, source: std::io::Error },
+    OutputUnwritable {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write {path}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write PNG {path}")]
-    Png { path: PathBuf, source: image::ImageError },
+    Png {
+        path: PathBuf,
+        source: image::ImageError,
+    },
     #[error("cannot write JSON {path}")]
-    Json { path: PathBuf, source: serde_json::Error },
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
 }

@@ -56,11 +56,18 @@ pub struct Layout {
 }
 
 fn color(rng: &mut impl rand::Rng, lo: f32, hi: f32) -> [f32; 3] {
-    [rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi)]
+    [
+        rng.random_range(lo..hi),
+        rng.random_range(lo..hi),
+        rng.random_range(lo..hi),
+    ]
 }
 
 fn glass(rng: &mut impl rand::Rng) -> Material {
-    Material::Glass { ior: rng.random_range(1.45..1.55), tint: color(rng, 0.9, 1.0) }
+    Material::Glass {
+        ior: rng.random_range(1.45..1.55),
+        tint: color(rng, 0.9, 1.0),
+    }
 }
 
 fn glazed(rng: &mut impl rand::Rng) -> Material {
@@ -72,17 +79,40 @@ fn glazed(rng: &mut impl rand::Rng) -> Material {
 
 fn environment(rng: &mut impl rand::Rng) -> Environment {
     let texture = match rng.random_range(0..4u32) {
-        0 => Texture::Plain { color: color(rng, 0.3, 0.75) },
-        1 => Texture::Checker { a: color(rng, 0.5, 0.8), b: color(rng, 0.1, 0.35), size: rng.random_range(0.02..0.05) },
-        2 => Texture::Marble { base: color(rng, 0.65, 0.85), vein: color(rng, 0.15, 0.4), frequency: rng.random_range(30.0..60.0) },
-        _ => Texture::Wood { light: [0.62, 0.42, 0.24], dark: [0.33, 0.19, 0.09], ring_spacing: rng.random_range(0.006..0.012) },
+        0 => Texture::Plain {
+            color: color(rng, 0.3, 0.75),
+        },
+        1 => Texture::Checker {
+            a: color(rng, 0.5, 0.8),
+            b: color(rng, 0.1, 0.35),
+            size: rng.random_range(0.02..0.05),
+        },
+        2 => Texture::Marble {
+            base: color(rng, 0.65, 0.85),
+            vein: color(rng, 0.15, 0.4),
+            frequency: rng.random_range(30.0..60.0),
+        },
+        _ => Texture::Wood {
+            light: [0.62, 0.42, 0.24],
+            dark: [0.33, 0.19, 0.09],
+            ring_spacing: rng.random_range(0.006..0.012),
+        },
     };
     let background = if rng.random_bool(0.5) {
-        Background::Sky { horizon: color(rng, 0.6, 0.85), zenith: color(rng, 0.35, 0.6) }
+        Background::Sky {
+            horizon: color(rng, 0.6, 0.85),
+            zenith: color(rng, 0.35, 0.6),
+        }
     } else {
-        Background::Wall { color: color(rng, 0.2, 0.7) }
+        Background::Wall {
+            color: color(rng, 0.2, 0.7),
+        }
     };
-    let centre: [f32; 3] = [rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(0.9..1.1)];
+    let centre: [f32; 3] = [
+        rng.random_range(-0.3..0.3),
+        rng.random_range(-0.3..0.3),
+        rng.random_range(0.9..1.1),
+    ];
     let half = rng.random_range(0.2..0.35);
     // Radiance such that the table centre receives E/π ≈ 0.8 (a well exposed diffuse surface):
     // E = L A cos²θ / r², cosθ = z / r.
@@ -90,18 +120,43 @@ fn environment(rng: &mut impl rand::Rng) -> Environment {
     let cos = centre[2] / r2.sqrt();
     let radiance = 0.8 * std::f32::consts::PI * r2 / (4.0 * half * half * cos * cos);
     Environment {
-        table: Table { half_size_m: 0.5, texture },
+        table: Table {
+            half_size_m: 0.5,
+            texture,
+        },
         background,
-        light: AreaLight { centre_m: centre, half_size_m: half, radiance },
+        light: AreaLight {
+            centre_m: centre,
+            half_size_m: half,
+            radiance,
+        },
         ambient: 0.22,
     }
 }
 
-fn make_object(id: u32, kind: ShapeKind, material: Material, orientation: Orientation, rng: &mut impl rand::Rng, slices: u32) -> ObjectSpec {
+fn make_object(
+    id: u32,
+    kind: ShapeKind,
+    material: Material,
+    orientation: Orientation,
+    rng: &mut impl rand::Rng,
+    slices: u32,
+) -> ObjectSpec {
     let model = build(kind, rng, slices);
-    let density = if material.is_transparent() { GLASS_DENSITY } else { CERAMIC_DENSITY };
+    let density = if material.is_transparent() {
+        GLASS_DENSITY
+    } else {
+        CERAMIC_DENSITY
+    };
     let mass_kg = model.mesh.volume() * density;
-    ObjectSpec { id, model, material, mass_kg, orientation, plate: Plate::None }
+    ObjectSpec {
+        id,
+        model,
+        material,
+        mass_kg,
+        orientation,
+        plate: Plate::None,
+    }
 }
 
 /// Rotation of an object: yaw about z, flipped about x when inverted.
@@ -115,30 +170,73 @@ fn orientation_quat(o: Orientation, yaw: f32) -> Quat {
 
 /// Lowest and highest world z of a model under a rotation.
 fn z_range(m: &Model, q: Quat) -> (f32, f32) {
-    m.mesh.positions.iter().map(|p| (q * *p).z).fold((f32::MAX, f32::MIN), |(lo, hi), z| (lo.min(z), hi.max(z)))
+    m.mesh
+        .positions
+        .iter()
+        .map(|p| (q * *p).z)
+        .fold((f32::MAX, f32::MIN), |(lo, hi), z| (lo.min(z), hi.max(z)))
 }
 
 /// Footprint radius: largest horizontal distance of a vertex from the model origin.
 fn footprint(m: &Model) -> f32 {
-    m.mesh.positions.iter().map(|p| p.truncate().length()).fold(0.0, f32::max)
+    m.mesh
+        .positions
+        .iter()
+        .map(|p| p.truncate().length())
+        .fold(0.0, f32::max)
 }
 
 /// Composes a scene of `n` objects (`n ≥ 2`).
 pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
     let env = environment(rng);
-    let support_kind = if rng.random_bool(0.6) { ShapeKind::Tumbler } else { ShapeKind::Bowl };
-    let top_kind = [ShapeKind::Tumbler, ShapeKind::WineGlass, ShapeKind::Bottle][rng.random_range(0..3usize)];
+    let support_kind = if rng.random_bool(0.6) {
+        ShapeKind::Tumbler
+    } else {
+        ShapeKind::Bowl
+    };
+    let top_kind =
+        [ShapeKind::Tumbler, ShapeKind::WineGlass, ShapeKind::Bottle][rng.random_range(0..3usize)];
     let mut objects = Vec::new();
     let g = glass(rng);
-    objects.push(make_object(1, support_kind, g, Orientation::Inverted, rng, slices));
+    objects.push(make_object(
+        1,
+        support_kind,
+        g,
+        Orientation::Inverted,
+        rng,
+        slices,
+    ));
     objects[0].plate = Plate::OnModelBase;
     let g = glass(rng);
-    objects.push(make_object(2, top_kind, g, Orientation::Upright, rng, slices));
-    let others = [ShapeKind::Tumbler, ShapeKind::WineGlass, ShapeKind::Bottle, ShapeKind::Bowl, ShapeKind::Mug, ShapeKind::Sphere];
+    objects.push(make_object(
+        2,
+        top_kind,
+        g,
+        Orientation::Upright,
+        rng,
+        slices,
+    ));
+    let others = [
+        ShapeKind::Tumbler,
+        ShapeKind::WineGlass,
+        ShapeKind::Bottle,
+        ShapeKind::Bowl,
+        ShapeKind::Mug,
+        ShapeKind::Sphere,
+    ];
     for id in 3..=n {
         let kind = others[rng.random_range(0..others.len())];
-        let material = if rng.random_bool(GLASS_PROBABILITY) { glass(rng) } else { glazed(rng) };
-        let orientation = if matches!(kind, ShapeKind::Tumbler | ShapeKind::Bowl) && rng.random_bool(0.25) { Orientation::Inverted } else { Orientation::Upright };
+        let material = if rng.random_bool(GLASS_PROBABILITY) {
+            glass(rng)
+        } else {
+            glazed(rng)
+        };
+        let orientation =
+            if matches!(kind, ShapeKind::Tumbler | ShapeKind::Bowl) && rng.random_bool(0.25) {
+                Orientation::Inverted
+            } else {
+                Orientation::Upright
+            };
         objects.push(make_object(id, kind, material, orientation, rng, slices));
         if orientation == Orientation::Inverted {
             objects.last_mut().expect("just pushed").plate = Plate::OnModelBase;
@@ -149,33 +247,65 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
     let mut start = Vec::new();
     let mut placed: Vec<(glam::Vec2, f32)> = Vec::new();
     let base_xy = glam::Vec2::new(rng.random_range(-0.04..0.04), rng.random_range(-0.04..0.04));
-    let q_support = orientation_quat(Orientation::Inverted, rng.random_range(0.0..std::f32::consts::TAU));
+    let q_support = orientation_quat(
+        Orientation::Inverted,
+        rng.random_range(0.0..std::f32::consts::TAU),
+    );
     let (lo_s, hi_s) = z_range(&objects[0].model, q_support);
-    let support_pose = Pose { rotation: q_support, translation: base_xy.extend(DROP_GAP_M - lo_s) };
+    let support_pose = Pose {
+        rotation: q_support,
+        translation: base_xy.extend(DROP_GAP_M - lo_s),
+    };
     start.push(support_pose);
-    let q_top = orientation_quat(Orientation::Upright, rng.random_range(0.0..std::f32::consts::TAU));
+    let q_top = orientation_quat(
+        Orientation::Upright,
+        rng.random_range(0.0..std::f32::consts::TAU),
+    );
     let (lo_t, _) = z_range(&objects[1].model, q_top);
-    let offset = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU)) * rng.random_range(0.0..0.004);
+    let offset = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU))
+        * rng.random_range(0.0..0.004);
     let support_top = support_pose.translation.z + hi_s;
-    start.push(Pose { rotation: q_top, translation: (base_xy + offset).extend(support_top + DROP_GAP_M - lo_t) });
-    placed.push((base_xy, footprint(&objects[0].model).max(footprint(&objects[1].model))));
+    start.push(Pose {
+        rotation: q_top,
+        translation: (base_xy + offset).extend(support_top + DROP_GAP_M - lo_t),
+    });
+    placed.push((
+        base_xy,
+        footprint(&objects[0].model).max(footprint(&objects[1].model)),
+    ));
 
     for obj in objects.iter().skip(2) {
-        let q = orientation_quat(obj.orientation, rng.random_range(0.0..std::f32::consts::TAU));
+        let q = orientation_quat(
+            obj.orientation,
+            rng.random_range(0.0..std::f32::consts::TAU),
+        );
         let (lo, _) = z_range(&obj.model, q);
         let r = footprint(&obj.model);
         let mut xy = glam::Vec2::ZERO;
         // Rejection sampling; after many failures the placement disc grows.
         for attempt in 0..400 {
             let rad = PLACEMENT_RADIUS_M * (1.0 + attempt as f32 / 100.0);
-            let cand = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU)) * rad * rng.random_range(0.0f32..1.0).sqrt();
+            let cand = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU))
+                * rad
+                * rng.random_range(0.0f32..1.0).sqrt();
             xy = cand;
-            if placed.iter().all(|(c, rc)| (cand - *c).length() > r + rc + CLEARANCE_M) {
+            if placed
+                .iter()
+                .all(|(c, rc)| (cand - *c).length() > r + rc + CLEARANCE_M)
+            {
                 break;
             }
         }
         placed.push((xy, r));
-        start.push(Pose { rotation: q, translation: xy.extend(DROP_GAP_M - lo) });
+        start.push(Pose {
+            rotation: q,
+            translation: xy.extend(DROP_GAP_M - lo),
+        });
     }
-    Layout { objects, start, stack: (0, 1), env }
+    Layout {
+        objects,
+        start,
+        stack: (0, 1),
+        env,
+    }
 }

@@ -112,7 +112,18 @@ impl SynthConfig {
             Preset::Default => (640, 480, 4, 30, 4, 72),
             Preset::Tiny => (160, 120, 3, 3, 2, 32),
         };
-        Self { seed, out: out.into(), width, height, objects, test_views, samples_per_pixel, lathe_slices, existing: ExistingOutput::Refuse, progress: Progress::Hidden }
+        Self {
+            seed,
+            out: out.into(),
+            width,
+            height,
+            objects,
+            test_views,
+            samples_per_pixel,
+            lathe_slices,
+            existing: ExistingOutput::Refuse,
+            progress: Progress::Hidden,
+        }
     }
 
     /// Checks every field; the error names the field.
@@ -120,20 +131,38 @@ impl SynthConfig {
         let bad = |field, reason: String| Err(SynthError::InvalidConfig { field, reason });
         for (field, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > MAX_IMAGE_SIDE {
-                return bad(field, format!("{v} must be between 1 and {MAX_IMAGE_SIDE} pixels"));
+                return bad(
+                    field,
+                    format!("{v} must be between 1 and {MAX_IMAGE_SIDE} pixels"),
+                );
             }
         }
         if !(MIN_OBJECTS..=MAX_OBJECTS).contains(&self.objects) {
-            return bad("objects", format!("{} must be between {MIN_OBJECTS} and {MAX_OBJECTS}", self.objects));
+            return bad(
+                "objects",
+                format!(
+                    "{} must be between {MIN_OBJECTS} and {MAX_OBJECTS}",
+                    self.objects
+                ),
+            );
         }
         if self.test_views == 0 || self.test_views > 1000 {
-            return bad("test_views", format!("{} must be between 1 and 1000", self.test_views));
+            return bad(
+                "test_views",
+                format!("{} must be between 1 and 1000", self.test_views),
+            );
         }
         if self.samples_per_pixel == 0 || self.samples_per_pixel > 4096 {
-            return bad("samples_per_pixel", format!("{} must be between 1 and 4096", self.samples_per_pixel));
+            return bad(
+                "samples_per_pixel",
+                format!("{} must be between 1 and 4096", self.samples_per_pixel),
+            );
         }
         if self.lathe_slices < 8 || self.lathe_slices > 1024 {
-            return bad("lathe_slices", format!("{} must be between 8 and 1024", self.lathe_slices));
+            return bad(
+                "lathe_slices",
+                format!("{} must be between 8 and 1024", self.lathe_slices),
+            );
         }
         if self.out.as_os_str().is_empty() {
             return bad("out", "the output path is empty".into());
@@ -162,24 +191,48 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
         if !target.is_dir() {
             return Err(SynthError::OutputNotADirectory { path: target });
         }
-        let non_empty = std::fs::read_dir(&target).map_err(|source| SynthError::Io { path: target.clone(), source })?.next().is_some();
+        let non_empty = std::fs::read_dir(&target)
+            .map_err(|source| SynthError::Io {
+                path: target.clone(),
+                source,
+            })?
+            .next()
+            .is_some();
         if non_empty && config.existing == ExistingOutput::Refuse {
             return Err(SynthError::OutputNotEmpty { path: target });
         }
     }
-    let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "sequence".into());
-    let parent = target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "sequence".into());
+    let parent = target
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     let tmp = parent.join(format!(".{name}.synth-tmp-{}", std::process::id()));
     if tmp.exists() {
-        std::fs::remove_dir_all(&tmp).map_err(|source| SynthError::Io { path: tmp.clone(), source })?;
+        std::fs::remove_dir_all(&tmp).map_err(|source| SynthError::Io {
+            path: tmp.clone(),
+            source,
+        })?;
     }
-    std::fs::create_dir_all(&tmp).map_err(|source| SynthError::OutputUnwritable { path: target.clone(), source })?;
+    std::fs::create_dir_all(&tmp).map_err(|source| SynthError::OutputUnwritable {
+        path: target.clone(),
+        source,
+    })?;
     let result = generate_into(config, &tmp);
     let finish = result.and_then(|mut summary| {
         if target.exists() {
-            std::fs::remove_dir_all(&target).map_err(|source| SynthError::Io { path: target.clone(), source })?;
+            std::fs::remove_dir_all(&target).map_err(|source| SynthError::Io {
+                path: target.clone(),
+                source,
+            })?;
         }
-        std::fs::rename(&tmp, &target).map_err(|source| SynthError::Io { path: target.clone(), source })?;
+        std::fs::rename(&tmp, &target).map_err(|source| SynthError::Io {
+            path: target.clone(),
+            source,
+        })?;
         summary.out = target.clone();
         Ok(summary)
     });
@@ -192,14 +245,32 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
 /// How well the stacked pair rests after settling.
 fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
     let (s, t) = layout.stack;
-    let world_z = |i: usize| layout.objects[i].model.mesh.positions.iter().map(|p| rest[i].apply(*p).z).fold(f32::MAX, f32::min);
+    let world_z = |i: usize| {
+        layout.objects[i]
+            .model
+            .mesh
+            .positions
+            .iter()
+            .map(|p| rest[i].apply(*p).z)
+            .fold(f32::MAX, f32::min)
+    };
     let height = |i: usize| {
         let (lo, hi) = layout.objects[i].model.mesh.bounds();
         hi.z - lo.z
     };
-    let tilt = |i: usize| (rest[i].rotation * glam::Vec3::Z).z.abs().clamp(0.0, 1.0).acos().to_degrees();
+    let tilt = |i: usize| {
+        (rest[i].rotation * glam::Vec3::Z)
+            .z
+            .abs()
+            .clamp(0.0, 1.0)
+            .acos()
+            .to_degrees()
+    };
     let min_z = world_z(t);
-    let all_on_table = (0..rest.len()).filter(|&i| i != t).all(|i| world_z(i) < ON_TABLE_M && rest[i].translation.truncate().length() < layout.env.table.half_size_m);
+    let all_on_table = (0..rest.len()).filter(|&i| i != t).all(|i| {
+        world_z(i) < ON_TABLE_M
+            && rest[i].translation.truncate().length() < layout.env.table.half_size_m
+    });
     let verified = all_on_table && min_z > 0.7 * height(s) && tilt(t) < 15.0 && tilt(s) < 5.0;
     Relation {
         kind: "stack",
@@ -215,15 +286,27 @@ fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
 /// t = 0 settling in two phases: everything but the supported object first; then the supported
 /// object alone onto the (now fixed) settled scene. A resting support does not move anyway, and
 /// a static support gives the stiff, creep-free contact that a dynamic one lacks in rapier.
-fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, physics::SettleStats, Option<SeatCorrection>) {
+fn settle_stack(
+    layout: &layout::Layout,
+    params: &PhysicsParams,
+) -> (Vec<Pose>, physics::SettleStats, Option<SeatCorrection>) {
     let top = layout.stack.1;
     fn spec(o: &layout::ObjectSpec) -> BodySpec<'_> {
-        BodySpec { hull_points: &o.model.hull_points, mass_kg: o.mass_kg, plate: o.plate }
+        BodySpec {
+            hull_points: &o.model.hull_points,
+            mass_kg: o.mass_kg,
+            plate: o.plate,
+        }
     }
     let rest_idx: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != top).collect();
     let specs: Vec<BodySpec> = rest_idx.iter().map(|&i| spec(&layout.objects[i])).collect();
     let start: Vec<Pose> = rest_idx.iter().map(|&i| layout.start[i]).collect();
-    let (phase_a, stats_a) = physics::settle(&specs, &start, &vec![physics::Wake::Awake; specs.len()], params);
+    let (phase_a, stats_a) = physics::settle(
+        &specs,
+        &start,
+        &vec![physics::Wake::Awake; specs.len()],
+        params,
+    );
     // The supported object keeps its height above its support's settled pose.
     let mut poses = layout.start.clone();
     for (k, &i) in rest_idx.iter().enumerate() {
@@ -233,11 +316,36 @@ fn settle_stack(layout: &layout::Layout, params: &PhysicsParams) -> (Vec<Pose>, 
     let lift = poses[support].translation - layout.start[support].translation;
     poses[top].translation += lift;
     let specs: Vec<BodySpec> = layout.objects.iter().map(spec).collect();
-    let wake: Vec<physics::Wake> = (0..specs.len()).map(|i| if i == top { physics::Wake::Awake } else { physics::Wake::Fixed }).collect();
-    let (mut rest, stats_b) = physics::settle(&specs, &poses, &wake, &PhysicsParams { linear_damping: SETTLE_ONTO_DAMPING.0, angular_damping: SETTLE_ONTO_DAMPING.1, ..*params });
+    let wake: Vec<physics::Wake> = (0..specs.len())
+        .map(|i| {
+            if i == top {
+                physics::Wake::Awake
+            } else {
+                physics::Wake::Fixed
+            }
+        })
+        .collect();
+    let (mut rest, stats_b) = physics::settle(
+        &specs,
+        &poses,
+        &wake,
+        &PhysicsParams {
+            linear_damping: SETTLE_ONTO_DAMPING.0,
+            angular_damping: SETTLE_ONTO_DAMPING.1,
+            ..*params
+        },
+    );
     let seat = seat_on_support(layout, &mut rest);
     let steps = stats_a.steps + stats_b.steps;
-    (rest, physics::SettleStats { steps, seconds: steps as f32 * params.dt, converged: stats_a.converged && stats_b.converged }, seat)
+    (
+        rest,
+        physics::SettleStats {
+            steps,
+            seconds: steps as f32 * params.dt,
+            converged: stats_a.converged && stats_b.converged,
+        },
+        seat,
+    )
 }
 
 /// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
@@ -258,15 +366,35 @@ fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCor
     let fix = glam::Quat::from_rotation_arc(axis_t, up);
     // Untilt about the object's centre (its translation is kept), then slide it along the axis.
     rest[t].rotation = (fix * rest[t].rotation).normalize();
-    let top_of_support = layout.objects[s].model.mesh.positions.iter().map(|p| rest[s].apply(*p).dot(up)).fold(f32::MIN, f32::max);
-    let base_of_top = layout.objects[t].model.mesh.positions.iter().map(|p| rest[t].apply(*p).dot(up)).fold(f32::MAX, f32::min);
+    let top_of_support = layout.objects[s]
+        .model
+        .mesh
+        .positions
+        .iter()
+        .map(|p| rest[s].apply(*p).dot(up))
+        .fold(f32::MIN, f32::max);
+    let base_of_top = layout.objects[t]
+        .model
+        .mesh
+        .positions
+        .iter()
+        .map(|p| rest[t].apply(*p).dot(up))
+        .fold(f32::MAX, f32::min);
     rest[t].translation += (top_of_support + SEAT_GAP_M - base_of_top) * up;
-    Some(SeatCorrection { tilt_deg, shift_mm: 1000.0 * rest[t].translation.distance(before) })
+    Some(SeatCorrection {
+        tilt_deg,
+        shift_mm: 1000.0 * rest[t].translation.distance(before),
+    })
 }
 
 fn pose_info(p: &Pose) -> PoseInfo {
     let r = bop_writer::pose_rotation(p).transpose().to_cols_array();
-    PoseInfo { r_m2w: r.map(|v| bop_writer::round(v, 9)), t_m2w_mm: (p.translation.as_dvec3() * 1000.0).to_array().map(|v| bop_writer::round(v, 4)) }
+    PoseInfo {
+        r_m2w: r.map(|v| bop_writer::round(v, 9)),
+        t_m2w_mm: (p.translation.as_dvec3() * 1000.0)
+            .to_array()
+            .map(|v| bop_writer::round(v, 4)),
+    }
 }
 
 fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError> {
@@ -293,13 +421,27 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         let n = rest0.len();
         (0..n)
             .min_by(|&a, &b| {
-                let d = |i: usize| (0..n).filter(|&j| j != i).map(|j| rest0[i].translation.distance(rest0[j].translation)).fold(f32::MAX, f32::min);
+                let d = |i: usize| {
+                    (0..n)
+                        .filter(|&j| j != i)
+                        .map(|j| rest0[i].translation.distance(rest0[j].translation))
+                        .fold(f32::MAX, f32::min)
+                };
                 d(a).total_cmp(&d(b))
             })
             .unwrap_or(0)
     };
-    let keep: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != removed).collect();
-    let specs: Vec<BodySpec> = keep.iter().map(|&i| BodySpec { hull_points: &layout.objects[i].model.hull_points, mass_kg: layout.objects[i].mass_kg, plate: layout.objects[i].plate }).collect();
+    let keep: Vec<usize> = (0..layout.objects.len())
+        .filter(|&i| i != removed)
+        .collect();
+    let specs: Vec<BodySpec> = keep
+        .iter()
+        .map(|&i| BodySpec {
+            hull_points: &layout.objects[i].model.hull_points,
+            mass_kg: layout.objects[i].mass_kg,
+            plate: layout.objects[i].plate,
+        })
+        .collect();
     let start1: Vec<Pose> = keep.iter().map(|&i| rest0[i]).collect();
     // Objects that rest on something other than the table (their lowest point is above
     // ON_TABLE_M) may have lost their support: they start awake. Everything standing on the table
@@ -307,8 +449,17 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let wake: Vec<physics::Wake> = keep
         .iter()
         .map(|&i| {
-            let lowest = layout.objects[i].model.hull_points.iter().map(|p| rest0[i].apply(*p).z).fold(f32::MAX, f32::min);
-            if lowest > ON_TABLE_M { physics::Wake::Awake } else { physics::Wake::Asleep }
+            let lowest = layout.objects[i]
+                .model
+                .hull_points
+                .iter()
+                .map(|p| rest0[i].apply(*p).z)
+                .fold(f32::MAX, f32::min);
+            if lowest > ON_TABLE_M {
+                physics::Wake::Awake
+            } else {
+                physics::Wake::Asleep
+            }
         })
         .collect();
     let (mut rest1, stats1) = physics::settle(&specs, &start1, &wake, &params);
@@ -336,7 +487,11 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
 
     // 3. Cameras around the workspace centre.
     let k = cameras::intrinsics(config.width, config.height);
-    let mean = rest0.iter().map(|p| p.translation.as_dvec3()).sum::<DVec3>() / rest0.len() as f64;
+    let mean = rest0
+        .iter()
+        .map(|p| p.translation.as_dvec3())
+        .sum::<DVec3>()
+        / rest0.len() as f64;
     let centre = DVec3::new(mean.x, mean.y, 0.03);
     let (train, ring) = cameras::train_views(k, centre, &mut rng);
     let test0 = cameras::test_views(k, centre, config.test_views, &mut rng);
@@ -348,41 +503,81 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             .iter()
             .map(|(i, p)| {
                 let o = &layout.objects[*i];
-                Placed { obj_id: o.id, mesh: &o.model.mesh, material: o.material, rotation: p.rotation, translation: p.translation }
+                Placed {
+                    obj_id: o.id,
+                    mesh: &o.model.mesh,
+                    material: o.material,
+                    rotation: p.rotation,
+                    translation: p.translation,
+                }
             })
             .collect()
     };
     let state0: Vec<(usize, Pose)> = rest0.iter().copied().enumerate().collect();
     let state1: Vec<(usize, Pose)> = keep.iter().copied().zip(rest1.iter().copied()).collect();
-    let scenes = [RenderScene::new(&placed(&state0), layout.env), RenderScene::new(&placed(&state1), layout.env)];
+    let scenes = [
+        RenderScene::new(&placed(&state0), layout.env),
+        RenderScene::new(&placed(&state1), layout.env),
+    ];
     let states = [&state0, &state1];
-    let splits: [(&str, usize, Vec<trand_core::camera::Camera>); 4] =
-        [("train_0", 0, train.clone()), ("test_0", 0, test0), ("train_1", 1, vec![train[0]]), ("test_1", 1, test1)];
-    let total_rows: u64 = splits.iter().map(|s| s.2.len() as u64 * config.height as u64).sum();
+    let splits: [(&str, usize, Vec<trand_core::camera::Camera>); 4] = [
+        ("train_0", 0, train.clone()),
+        ("test_0", 0, test0),
+        ("train_1", 1, vec![train[0]]),
+        ("test_1", 1, test1),
+    ];
+    let total_rows: u64 = splits
+        .iter()
+        .map(|s| s.2.len() as u64 * config.height as u64)
+        .sum();
     let bar = match config.progress {
         Progress::Bar => {
             let b = indicatif::ProgressBar::new(total_rows);
-            b.set_style(indicatif::ProgressStyle::with_template("{msg:>8} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}").expect("static template").progress_chars("=> "));
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{msg:>8} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+                )
+                .expect("static template")
+                .progress_chars("=> "),
+            );
             b
         }
         Progress::Hidden => indicatif::ProgressBar::hidden(),
     };
     let t_render = Instant::now();
-    let settings = RenderSettings { samples_per_pixel: config.samples_per_pixel };
+    let settings = RenderSettings {
+        samples_per_pixel: config.samples_per_pixel,
+    };
     let mut views = 0;
     for (split_index, (name, state, cams)) in splits.iter().enumerate() {
         bar.set_message(*name);
         let split = dir.join(name);
         bop_writer::create_split_dirs(&split)?;
-        let present: Vec<u32> = states[*state].iter().map(|(i, _)| layout.objects[*i].id).collect();
+        let present: Vec<u32> = states[*state]
+            .iter()
+            .map(|(i, _)| layout.objects[*i].id)
+            .collect();
         let (mut cam_map, mut gt_map, mut info_map) = (Vec::new(), Vec::new(), Vec::new());
         for (frame, cam) in cams.iter().enumerate() {
-            let view_seed = config.seed.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ ((split_index as u64) << 32 | frame as u64);
+            let view_seed = config.seed.wrapping_mul(0x2545_f491_4f6c_dd1d)
+                ^ ((split_index as u64) << 32 | frame as u64);
             let img = render_view(&scenes[*state], cam, settings, view_seed, &|| bar.inc(1));
             bop_writer::write_view(&split, frame as u32, &img, &present)?;
             cam_map.push((frame as u32, bop_writer::camera_entry(cam)));
-            gt_map.push((frame as u32, states[*state].iter().map(|(i, p)| bop_writer::gt_entry(cam, layout.objects[*i].id, p)).collect::<Vec<_>>()));
-            info_map.push((frame as u32, present.iter().map(|&id| bop_writer::gt_info_entry(&img, id)).collect::<Vec<_>>()));
+            gt_map.push((
+                frame as u32,
+                states[*state]
+                    .iter()
+                    .map(|(i, p)| bop_writer::gt_entry(cam, layout.objects[*i].id, p))
+                    .collect::<Vec<_>>(),
+            ));
+            info_map.push((
+                frame as u32,
+                present
+                    .iter()
+                    .map(|&id| bop_writer::gt_info_entry(&img, id))
+                    .collect::<Vec<_>>(),
+            ));
             views += 1;
         }
         bop_writer::write_json(&split.join("scene_camera.json"), &FrameMap(cam_map))?;
@@ -394,7 +589,10 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
 
     // Models and sequence.json.
     let models = dir.join("models");
-    std::fs::create_dir_all(&models).map_err(|source| SynthError::Io { path: models.clone(), source })?;
+    std::fs::create_dir_all(&models).map_err(|source| SynthError::Io {
+        path: models.clone(),
+        source,
+    })?;
     let mut infos = Vec::new();
     for o in &layout.objects {
         bop_writer::write_ply(&models.join(format!("obj_{:06}.ply", o.id)), &o.model.mesh)?;
@@ -416,7 +614,10 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             params_m: o.model.params.iter().copied().collect(),
             initial_mode: o.orientation,
             pose_t0: pose_info(&rest0[i]),
-            pose_t1: keep.iter().position(|&j| j == i).map(|k| pose_info(&rest1[k])),
+            pose_t1: keep
+                .iter()
+                .position(|&j| j == i)
+                .map(|k| pose_info(&rest1[k])),
             removed_at_t1: i == removed,
         })
         .collect();
@@ -424,9 +625,23 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         format: "BlenderProc/BOP train_pbr-like transparent-object sequence (trand-synth)",
         generator: format!("trand-synth {}", env!("CARGO_PKG_VERSION")),
         seed: config.seed,
-        resolution: Resolution { width: config.width, height: config.height },
-        intrinsics: IntrinsicsInfo { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, cam_k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0], convention: "OpenCV; integer pixel coordinates are pixel centres" },
-        units: Units { world: "metres, z up, table top z = 0", poses_t: "millimetres", depth_png: "uint16 mm" },
+        resolution: Resolution {
+            width: config.width,
+            height: config.height,
+        },
+        intrinsics: IntrinsicsInfo {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            cam_k: [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+            convention: "OpenCV; integer pixel coordinates are pixel centres",
+        },
+        units: Units {
+            world: "metres, z up, table top z = 0",
+            poses_t: "millimetres",
+            depth_png: "uint16 mm",
+        },
         depth: "planar camera-z depth of first surface at pixel centre (glass surfaces included), 0 = no surface",
         mask_visib_naming: "mask_visib/{frame:06d}_{obj_id:06d}.png (obj_id, not BOP gt index); files only for objects present in that state",
         states: serde_json::json!({
@@ -467,5 +682,13 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     };
     bop_writer::write_json(&dir.join("sequence.json"), &seq)?;
     let stack_verified = seq.relation_t0.verified;
-    Ok(Summary { out: dir.to_path_buf(), views, removed_obj_id: seq.removed_obj_id, stack_verified, physics_s, render_s, total_s: t_start.elapsed().as_secs_f64() })
+    Ok(Summary {
+        out: dir.to_path_buf(),
+        views,
+        removed_obj_id: seq.removed_obj_id,
+        stack_verified,
+        physics_s,
+        render_s,
+        total_s: t_start.elapsed().as_secs_f64(),
+    })
 }

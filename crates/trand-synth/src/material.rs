@@ -60,7 +60,10 @@ pub fn dielectric(d: Vec3, n: Vec3, n1: f32, n2: f32) -> Interface {
     let rs = ((n1 * cos1 - n2 * cos2) / (n1 * cos1 + n2 * cos2)).powi(2);
     let rp = ((n1 * cos2 - n2 * cos1) / (n1 * cos2 + n2 * cos1)).powi(2);
     let refracted = (eta * d + (eta * cos1 - cos2) * n).normalize();
-    Interface::Split { reflectance: 0.5 * (rs + rp), refracted }
+    Interface::Split {
+        reflectance: 0.5 * (rs + rp),
+        refracted,
+    }
 }
 
 /// Schlick's approximation `F = F0 + (1 − F0)(1 − cos θ)⁵`, used for the glazed clear coat.
@@ -80,13 +83,27 @@ pub fn absorption(tint: [f32; 3], length: f32) -> Vec3 {
 #[derive(Clone, Copy, Debug, Serialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum Texture {
-    Plain { color: [f32; 3] },
+    Plain {
+        color: [f32; 3],
+    },
     /// Squares of side `size` metres in two colours.
-    Checker { a: [f32; 3], b: [f32; 3], size: f32 },
+    Checker {
+        a: [f32; 3],
+        b: [f32; 3],
+        size: f32,
+    },
     /// Veins `|sin(x·f + turbulence)|` between a base and a vein colour.
-    Marble { base: [f32; 3], vein: [f32; 3], frequency: f32 },
+    Marble {
+        base: [f32; 3],
+        vein: [f32; 3],
+        frequency: f32,
+    },
     /// Growth rings around a far-away centre, perturbed by noise, between two wood tones.
-    Wood { light: [f32; 3], dark: [f32; 3], ring_spacing: f32 },
+    Wood {
+        light: [f32; 3],
+        dark: [f32; 3],
+        ring_spacing: f32,
+    },
 }
 
 impl Texture {
@@ -97,12 +114,20 @@ impl Texture {
                 let parity = ((x / size).floor() as i64 + (y / size).floor() as i64).rem_euclid(2);
                 if parity == 0 { a.into() } else { b.into() }
             }
-            Texture::Marble { base, vein, frequency } => {
+            Texture::Marble {
+                base,
+                vein,
+                frequency,
+            } => {
                 let p = Vec2::new(x, y) * 20.0;
                 let s = (x * frequency + 6.0 * turbulence(p)).sin().abs().powf(0.35);
                 Vec3::from(vein).lerp(base.into(), s)
             }
-            Texture::Wood { light, dark, ring_spacing } => {
+            Texture::Wood {
+                light,
+                dark,
+                ring_spacing,
+            } => {
                 let p = Vec2::new(x, y);
                 let r = (p - Vec2::new(-1.3, 0.21)).length() + 0.004 * turbulence(p * 40.0);
                 let ring = (r / ring_spacing).fract();
@@ -134,7 +159,9 @@ fn value_noise(p: Vec2) -> f32 {
 
 /// Four octaves of value noise (a "turbulence" sum), range about `[0, 1)`.
 fn turbulence(p: Vec2) -> f32 {
-    (0..4).map(|o| value_noise(p * (1u32 << o) as f32) / (2u32 << o) as f32).sum()
+    (0..4)
+        .map(|o| value_noise(p * (1u32 << o) as f32) / (2u32 << o) as f32)
+        .sum()
 }
 
 #[cfg(test)]
@@ -143,7 +170,13 @@ mod tests {
 
     #[test]
     fn fresnel_at_normal_incidence_is_the_textbook_four_percent() {
-        let Interface::Split { reflectance, refracted } = dielectric(-Vec3::Z, Vec3::Z, 1.0, 1.5) else { panic!() };
+        let Interface::Split {
+            reflectance,
+            refracted,
+        } = dielectric(-Vec3::Z, Vec3::Z, 1.0, 1.5)
+        else {
+            panic!()
+        };
         assert!((reflectance - 0.04).abs() < 1e-6);
         assert!((refracted - (-Vec3::Z)).length() < 1e-6);
     }
@@ -152,7 +185,9 @@ mod tests {
     fn refraction_obeys_snells_law() {
         let th: f32 = 0.7;
         let d = Vec3::new(th.sin(), 0.0, -th.cos());
-        let Interface::Split { refracted, .. } = dielectric(d, Vec3::Z, 1.0, 1.5) else { panic!() };
+        let Interface::Split { refracted, .. } = dielectric(d, Vec3::Z, 1.0, 1.5) else {
+            panic!()
+        };
         let sin2 = refracted.x;
         assert!((th.sin() - 1.5 * sin2).abs() < 1e-6);
     }
@@ -164,11 +199,17 @@ mod tests {
             // Inside glass going up into air; the normal faces the incident (glass) side.
             let d = Vec3::new(angle.sin(), 0.0, angle.cos());
             let got = dielectric(d, -Vec3::Z, 1.5, 1.0);
-            assert_eq!(got == Interface::TotalInternalReflection, tir, "angle {angle} vs critical {crit}");
+            assert_eq!(
+                got == Interface::TotalInternalReflection,
+                tir,
+                "angle {angle} vs critical {crit}"
+            );
         }
         // Just below the critical angle nearly everything is already reflected (R → 1).
         let d = Vec3::new((crit - 1e-3).sin(), 0.0, (crit - 1e-3).cos());
-        let Interface::Split { reflectance, .. } = dielectric(d, -Vec3::Z, 1.5, 1.0) else { panic!() };
+        let Interface::Split { reflectance, .. } = dielectric(d, -Vec3::Z, 1.5, 1.0) else {
+            panic!()
+        };
         assert!(reflectance > 0.7, "R = {reflectance}");
     }
 }

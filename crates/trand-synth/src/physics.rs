@@ -80,10 +80,17 @@ pub struct BodySpec<'a> {
 /// Centre and half-extents (model frame) of the plate of [`Plate::OnModelBase`].
 fn base_plate(points: &[Vec3]) -> (Vec3, Vec3) {
     let lo = points.iter().map(|p| p.z).fold(f32::MAX, f32::min);
-    let r = points.iter().filter(|p| p.z < lo + 1e-5).map(|p| p.truncate().length()).fold(0.0, f32::max);
+    let r = points
+        .iter()
+        .filter(|p| p.z < lo + 1e-5)
+        .map(|p| p.truncate().length())
+        .fold(0.0, f32::max);
     // Inscribed square of the base disc (half-side r/√2), slightly inset.
     let half = 0.65 * r;
-    (Vec3::new(0.0, 0.0, lo + PLATE_HALF_THICKNESS_M - PLATE_PROUD_M), Vec3::new(half, half, PLATE_HALF_THICKNESS_M))
+    (
+        Vec3::new(0.0, 0.0, lo + PLATE_HALF_THICKNESS_M - PLATE_PROUD_M),
+        Vec3::new(half, half, PLATE_HALF_THICKNESS_M),
+    )
 }
 
 /// Result of one settling run.
@@ -110,7 +117,15 @@ impl Default for PhysicsParams {
     fn default() -> Self {
         // Damping and restitution as in the reference data's Bullet settings; `length_unit` 0.1
         // because objects are ~10 cm (rapier's sleep and contact thresholds scale with it).
-        Self { friction: 0.8, restitution: 0.05, linear_damping: 0.3, angular_damping: 0.8, dt: DT, max_steps: 2400, length_unit: 0.1 }
+        Self {
+            friction: 0.8,
+            restitution: 0.05,
+            linear_damping: 0.3,
+            angular_damping: 0.8,
+            dt: DT,
+            max_steps: 2400,
+            length_unit: 0.1,
+        }
     }
 }
 
@@ -132,7 +147,12 @@ pub enum Wake {
 /// glasses on flat hulls can postpone indefinitely): every [`CHECK_EVERY`] steps each body's
 /// largest hull-vertex displacement since the previous check is measured; the scene is at rest
 /// when all are below [`REST_TOL_MM`] (after at least [`MIN_STEPS`]).
-pub fn settle(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &PhysicsParams) -> (Vec<Pose>, SettleStats) {
+pub fn settle(
+    bodies: &[BodySpec<'_>],
+    start: &[Pose],
+    wake: &[Wake],
+    params: &PhysicsParams,
+) -> (Vec<Pose>, SettleStats) {
     let mut world = PhysicsWorld::new();
     world.gravity = Vector::new(0.0, 0.0, -9.81);
     world.integration_parameters.dt = params.dt;
@@ -140,7 +160,9 @@ pub fn settle(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &P
     let [hx, hy, hz] = TABLE_HALF;
     world.insert(
         RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -hz)),
-        ColliderBuilder::cuboid(hx, hy, hz).friction(params.friction).restitution(params.restitution),
+        ColliderBuilder::cuboid(hx, hy, hz)
+            .friction(params.friction)
+            .restitution(params.restitution),
     );
     let mut handles = Vec::with_capacity(bodies.len());
     for ((b, p), w) in bodies.iter().zip(start).zip(wake) {
@@ -149,22 +171,33 @@ pub fn settle(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &P
             .mass(b.mass_kg)
             .friction(params.friction)
             .restitution(params.restitution);
-        let body = (if *w == Wake::Fixed { RigidBodyBuilder::fixed() } else { RigidBodyBuilder::dynamic() })
-            .pose(rapier3d::math::Pose::from_parts(p.translation, p.rotation))
-            .linear_damping(params.linear_damping)
-            .angular_damping(params.angular_damping)
-            .sleeping(*w == Wake::Asleep);
+        let body = (if *w == Wake::Fixed {
+            RigidBodyBuilder::fixed()
+        } else {
+            RigidBodyBuilder::dynamic()
+        })
+        .pose(rapier3d::math::Pose::from_parts(p.translation, p.rotation))
+        .linear_damping(params.linear_damping)
+        .angular_damping(params.angular_damping)
+        .sleeping(*w == Wake::Asleep);
         let handle = world.insert(body, collider).0;
         if b.plate == Plate::OnModelBase {
             let (c, h) = base_plate(b.hull_points);
-            let plate = ColliderBuilder::cuboid(h.x, h.y, h.z).translation(c).mass(0.0).friction(params.friction).restitution(params.restitution);
+            let plate = ColliderBuilder::cuboid(h.x, h.y, h.z)
+                .translation(c)
+                .mass(0.0)
+                .friction(params.friction)
+                .restitution(params.restitution);
             world.insert_collider(plate, Some(handle));
         }
         handles.push(handle);
     }
     let pose_of = |world: &PhysicsWorld, h: RigidBodyHandle| {
         let b = &world.bodies[h];
-        Pose { rotation: *b.rotation(), translation: b.translation() }
+        Pose {
+            rotation: *b.rotation(),
+            translation: b.translation(),
+        }
     };
     let mut last: Vec<Pose> = handles.iter().map(|h| pose_of(&world, *h)).collect();
     let mut steps = 0;
@@ -174,7 +207,10 @@ pub fn settle(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &P
         steps += 1;
         if steps % CHECK_EVERY == 0 {
             let now: Vec<Pose> = handles.iter().map(|h| pose_of(&world, *h)).collect();
-            let still = bodies.iter().zip(last.iter().zip(&now)).all(|(b, (a, c))| max_vertex_displacement_mm(b.hull_points, a, c) < REST_TOL_MM);
+            let still = bodies
+                .iter()
+                .zip(last.iter().zip(&now))
+                .all(|(b, (a, c))| max_vertex_displacement_mm(b.hull_points, a, c) < REST_TOL_MM);
             last = now;
             if still && steps >= MIN_STEPS {
                 converged = true;
@@ -182,12 +218,23 @@ pub fn settle(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &P
             }
         }
     }
-    (last, SettleStats { steps, seconds: steps as f32 * params.dt, converged })
+    (
+        last,
+        SettleStats {
+            steps,
+            seconds: steps as f32 * params.dt,
+            converged,
+        },
+    )
 }
 
 /// Largest displacement (mm) of any of `points` between two poses.
 pub fn max_vertex_displacement_mm(points: &[Vec3], a: &Pose, b: &Pose) -> f32 {
-    points.iter().map(|p| (a.apply(*p) - b.apply(*p)).length()).fold(0.0, f32::max) * 1000.0
+    points
+        .iter()
+        .map(|p| (a.apply(*p) - b.apply(*p)).length())
+        .fold(0.0, f32::max)
+        * 1000.0
 }
 
 /// Rotation angle (degrees) of `b.rotation · a.rotation⁻¹`.
@@ -203,10 +250,34 @@ mod tests {
     #[test]
     fn a_dropped_box_comes_to_rest_on_the_table_plane() {
         let h = 0.02;
-        let pts: Vec<Vec3> = (0..8).map(|i| Vec3::new(if i & 1 == 0 { -h } else { h }, if i & 2 == 0 { -h } else { h }, if i & 4 == 0 { -h } else { h })).collect();
-        let start = [Pose { rotation: Quat::IDENTITY, translation: Vec3::new(0.0, 0.0, 0.05) }];
-        let (rest, stats) = settle(&[BodySpec { hull_points: &pts, mass_kg: 0.1, plate: Plate::None }], &start, &[Wake::Awake], &PhysicsParams::default());
+        let pts: Vec<Vec3> = (0..8)
+            .map(|i| {
+                Vec3::new(
+                    if i & 1 == 0 { -h } else { h },
+                    if i & 2 == 0 { -h } else { h },
+                    if i & 4 == 0 { -h } else { h },
+                )
+            })
+            .collect();
+        let start = [Pose {
+            rotation: Quat::IDENTITY,
+            translation: Vec3::new(0.0, 0.0, 0.05),
+        }];
+        let (rest, stats) = settle(
+            &[BodySpec {
+                hull_points: &pts,
+                mass_kg: 0.1,
+                plate: Plate::None,
+            }],
+            &start,
+            &[Wake::Awake],
+            &PhysicsParams::default(),
+        );
         assert!(stats.converged, "{stats:?}");
-        assert!((rest[0].translation.z - h).abs() < 1e-3, "rests at z = {}", rest[0].translation.z);
+        assert!(
+            (rest[0].translation.z - h).abs() < 1e-3,
+            "rests at z = {}",
+            rest[0].translation.z
+        );
     }
 }

@@ -35,8 +35,18 @@ mod tests {
 
     #[test]
     fn lambert_polygon_irradiance_matches_numerical_integration() {
-        let light = AreaLight { centre_m: [0.1, -0.2, 1.0], half_size_m: 0.3, radiance: 2.0 };
-        for (p, n) in [(Vec3::ZERO, Vec3::Z), (Vec3::new(0.3, 0.1, 0.05), Vec3::new(0.3, 0.0, 1.0).normalize())] {
+        let light = AreaLight {
+            centre_m: [0.1, -0.2, 1.0],
+            half_size_m: 0.3,
+            radiance: 2.0,
+        };
+        for (p, n) in [
+            (Vec3::ZERO, Vec3::Z),
+            (
+                Vec3::new(0.3, 0.1, 0.05),
+                Vec3::new(0.3, 0.0, 1.0).normalize(),
+            ),
+        ] {
             // Midpoint rule over the light: E = ∫ L cosθ_s cosθ_l / r² dA.
             let k = 400;
             let mut e = 0.0f64;
@@ -59,7 +69,9 @@ mod tests {
 impl Background {
     pub fn radiance(&self, d: Vec3) -> Vec3 {
         match *self {
-            Background::Sky { horizon, zenith } => Vec3::from(horizon).lerp(zenith.into(), d.z.clamp(0.0, 1.0).sqrt()),
+            Background::Sky { horizon, zenith } => {
+                Vec3::from(horizon).lerp(zenith.into(), d.z.clamp(0.0, 1.0).sqrt())
+            }
             Background::Wall { color } => color.into(),
         }
     }
@@ -85,7 +97,12 @@ impl AreaLight {
 
     /// Corners, counter-clockwise seen from above (the order Lambert's formula below expects).
     pub fn corners(&self) -> [Vec3; 4] {
-        [self.point(0.0, 0.0), self.point(1.0, 0.0), self.point(1.0, 1.0), self.point(0.0, 1.0)]
+        [
+            self.point(0.0, 0.0),
+            self.point(1.0, 0.0),
+            self.point(1.0, 1.0),
+            self.point(0.0, 1.0),
+        ]
     }
 
     /// Unoccluded irradiance at `p` with normal `n` from the whole light, by Lambert's formula
@@ -112,7 +129,8 @@ impl AreaLight {
         }
         let t = (c.z - o.z) / d.z;
         let p = o + t * d;
-        (t > 0.0 && (p.x - c.x).abs() <= self.half_size_m && (p.y - c.y).abs() <= self.half_size_m).then_some(t)
+        (t > 0.0 && (p.x - c.x).abs() <= self.half_size_m && (p.y - c.y).abs() <= self.half_size_m)
+            .then_some(t)
     }
 }
 
@@ -169,10 +187,21 @@ impl RenderScene {
             for t in &p.mesh.triangles {
                 let [a, b, c] = t.map(|i| world(p.mesh.positions[i as usize]));
                 tris.push(Tri::new(a, b, c));
-                shading.push(TriShading { object: k as u32, normals: t.map(|i| p.rotation * p.mesh.normals[i as usize]) });
+                shading.push(TriShading {
+                    object: k as u32,
+                    normals: t.map(|i| p.rotation * p.mesh.normals[i as usize]),
+                });
             }
-            objects.push(RenderObject { obj_id: p.obj_id, material: p.material });
+            objects.push(RenderObject {
+                obj_id: p.obj_id,
+                material: p.material,
+            });
         }
-        Self { bvh: Bvh::build(tris), shading, objects, env }
+        Self {
+            bvh: Bvh::build(tris),
+            shading,
+            objects,
+            env,
+        }
     }
 }

@@ -36,12 +36,20 @@ impl Mesh {
         let base = self.positions.len() as u32;
         self.positions.extend_from_slice(&other.positions);
         self.normals.extend_from_slice(&other.normals);
-        self.triangles.extend(other.triangles.iter().map(|t| [t[0] + base, t[1] + base, t[2] + base]));
+        self.triangles.extend(
+            other
+                .triangles
+                .iter()
+                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
+        );
     }
 
     /// Axis-aligned bounds `(min, max)`.
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
+        self.positions.iter().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        )
     }
 
     /// Moves the mesh so its bounding-box centre is the origin; returns the shift applied.
@@ -73,14 +81,21 @@ pub fn lathe(profile: &[Vec2], slices: u32) -> Mesh {
     assert!(n >= 2 && slices >= 3);
     // 2D outward normal of each segment: for a profile walked counter-clockwise in the (r, z)
     // half-plane the outward side is the right-hand side, (dz, −dr).
-    let seg_normal: Vec<Vec2> = profile.windows(2).map(|w| {
-        let d = w[1] - w[0];
-        Vec2::new(d.y, -d.x).normalize_or_zero()
-    }).collect();
+    let seg_normal: Vec<Vec2> = profile
+        .windows(2)
+        .map(|w| {
+            let d = w[1] - w[0];
+            Vec2::new(d.y, -d.x).normalize_or_zero()
+        })
+        .collect();
     let cos_smooth = SMOOTH_ANGLE_DEG.to_radians().cos();
     let vertex_normal = |seg: usize, at_end: bool| -> Vec2 {
         let own = seg_normal[seg];
-        let neighbour = if at_end { seg_normal.get(seg + 1) } else { seg.checked_sub(1).map(|s| &seg_normal[s]) };
+        let neighbour = if at_end {
+            seg_normal.get(seg + 1)
+        } else {
+            seg.checked_sub(1).map(|s| &seg_normal[s])
+        };
         match neighbour {
             Some(nb) if own.dot(*nb) > cos_smooth => (own + *nb).normalize_or_zero(),
             _ => own,
@@ -99,7 +114,8 @@ pub fn lathe(profile: &[Vec2], slices: u32) -> Mesh {
             let (sn, cs) = phi.sin_cos();
             for (p, nn) in [(p0, n0), (p1, n1)] {
                 mesh.positions.push(Vec3::new(p.x * cs, p.x * sn, p.y));
-                mesh.normals.push(Vec3::new(nn.x * cs, nn.x * sn, nn.y).normalize_or_zero());
+                mesh.normals
+                    .push(Vec3::new(nn.x * cs, nn.x * sn, nn.y).normalize_or_zero());
             }
         }
         for k in 0..slices {
@@ -141,7 +157,14 @@ fn shell(outer: &[Vec2], wall: f32, base: f32) -> Vec<Vec2> {
     let (rim_o, rim_i) = (outer[m - 1], inner[m - 2]);
     let c = 0.5 * (rim_o + rim_i);
     let start = (rim_o - c).to_angle();
-    arc(&mut p, c, 0.5 * (rim_o - rim_i).length(), start, start + PI, 8);
+    arc(
+        &mut p,
+        c,
+        0.5 * (rim_o - rim_i).length(),
+        start,
+        start + PI,
+        8,
+    );
     p.pop(); // the arc's last point is the inner rim itself, pushed below
     let mut last_r = rim_i.x;
     for q in inner.iter().rev() {
@@ -160,7 +183,14 @@ fn shell(outer: &[Vec2], wall: f32, base: f32) -> Vec<Vec2> {
 /// the bottom corner rounded by `round` (a quarter circle).
 fn straight_wall(r0: f32, r1: f32, height: f32, round: f32, steps: u32) -> Vec<Vec2> {
     let mut w = vec![Vec2::new(r0 - round, 0.0)];
-    arc(&mut w, Vec2::new(r0 - round, round), round, -FRAC_PI_2, 0.0, 4);
+    arc(
+        &mut w,
+        Vec2::new(r0 - round, round),
+        round,
+        -FRAC_PI_2,
+        0.0,
+        4,
+    );
     for i in 1..=steps {
         let s = i as f32 / steps as f32;
         w.push(Vec2::new(r0 + (r1 - r0) * s, round + (height - round) * s));
@@ -235,7 +265,11 @@ fn hull_2d(mut pts: Vec<Vec2>) -> Vec<Vec2> {
     let mut h: Vec<Vec2> = Vec::with_capacity(2 * pts.len());
     for pass in 0..2 {
         let start = h.len();
-        let iter: Box<dyn Iterator<Item = &Vec2>> = if pass == 0 { Box::new(pts.iter()) } else { Box::new(pts.iter().rev()) };
+        let iter: Box<dyn Iterator<Item = &Vec2>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
         for &p in iter {
             while h.len() >= start + 2 && cross(h[h.len() - 2], h[h.len() - 1], p) <= 1e-12 {
                 h.pop();
@@ -251,9 +285,15 @@ fn hull_2d(mut pts: Vec<Vec2>) -> Vec<Vec2> {
 /// image across the axis, so the hull is that of the solid of revolution), revolved with
 /// [`HULL_SLICES`] samples, plus every 4th point of any extra part (the mug handle).
 pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
-    let mirrored: Vec<Vec2> = profile.iter().flat_map(|p| [*p, Vec2::new(-p.x, p.y)]).collect();
+    let mirrored: Vec<Vec2> = profile
+        .iter()
+        .flat_map(|p| [*p, Vec2::new(-p.x, p.y)])
+        .collect();
     let mut pts = Vec::new();
-    for q in simplify_closed(hull_2d(mirrored), HULL_SIMPLIFY_M).into_iter().filter(|q| q.x >= 0.0) {
+    for q in simplify_closed(hull_2d(mirrored), HULL_SIMPLIFY_M)
+        .into_iter()
+        .filter(|q| q.x >= 0.0)
+    {
         if q.x < 1e-9 {
             pts.push(Vec3::new(0.0, 0.0, q.y));
             continue;
@@ -278,19 +318,43 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
             let rt = rb + u(0.0, 0.006);
             let base = u(0.006, 0.011);
             let outer = straight_wall(rb, rt, h, 0.002, 6);
-            (shell(&outer, wall, base), vec![("R_bottom", rb), ("R_top", rt), ("height", h), ("wall", wall), ("base", base)], None)
+            (
+                shell(&outer, wall, base),
+                vec![
+                    ("R_bottom", rb),
+                    ("R_top", rt),
+                    ("height", h),
+                    ("wall", wall),
+                    ("base", base),
+                ],
+                None,
+            )
         }
         ShapeKind::Bowl => {
-            let (rf, r, h, wall) = (u(0.022, 0.03), u(0.048, 0.06), u(0.035, 0.05), u(0.0025, 0.0035));
+            let (rf, r, h, wall) = (
+                u(0.022, 0.03),
+                u(0.048, 0.06),
+                u(0.035, 0.05),
+                u(0.0025, 0.0035),
+            );
             let mut outer = vec![Vec2::new(rf, 0.0)];
             for i in 1..=14 {
                 let a = FRAC_PI_2 * i as f32 / 14.0;
                 outer.push(Vec2::new(rf + (r - rf) * a.sin(), h * (1.0 - a.cos())));
             }
-            (shell(&outer, wall, wall * 1.6), vec![("R_foot", rf), ("R_rim", r), ("height", h), ("wall", wall)], None)
+            (
+                shell(&outer, wall, wall * 1.6),
+                vec![("R_foot", rf), ("R_rim", r), ("height", h), ("wall", wall)],
+                None,
+            )
         }
         ShapeKind::Bottle => {
-            let (rb, rn, h, wall) = (u(0.024, 0.031), u(0.011, 0.014), u(0.12, 0.15), u(0.0018, 0.0026));
+            let (rb, rn, h, wall) = (
+                u(0.024, 0.031),
+                u(0.011, 0.014),
+                u(0.12, 0.15),
+                u(0.0018, 0.0026),
+            );
             let hb = h * u(0.5, 0.6);
             let sh = h * 0.2;
             let mut outer = straight_wall(rb, rb, hb, 0.002, 6);
@@ -303,7 +367,17 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
                 outer.push(Vec2::new(rn, hb + sh + (h - hb - sh) * i as f32 / 4.0));
             }
             let base = u(0.004, 0.007);
-            (shell(&outer, wall, base), vec![("R_body", rb), ("R_neck", rn), ("height", h), ("wall", wall), ("base", base)], None)
+            (
+                shell(&outer, wall, base),
+                vec![
+                    ("R_body", rb),
+                    ("R_neck", rn),
+                    ("height", h),
+                    ("wall", wall),
+                    ("base", base),
+                ],
+                None,
+            )
         }
         ShapeKind::Mug => {
             let (r, h, wall) = (u(0.034, 0.042), u(0.08, 0.1), u(0.003, 0.0045));
@@ -311,7 +385,17 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
             let outer = straight_wall(r, r, h, 0.003, 6);
             let (tube, major) = (u(0.005, 0.007), h * 0.28);
             let handle = handle_tube(r - 0.5 * wall, h * 0.5, major, tube, slices);
-            (shell(&outer, wall, base), vec![("R", r), ("height", h), ("wall", wall), ("base", base), ("handle_tube", tube)], Some(handle))
+            (
+                shell(&outer, wall, base),
+                vec![
+                    ("R", r),
+                    ("height", h),
+                    ("wall", wall),
+                    ("base", base),
+                    ("handle_tube", tube),
+                ],
+                Some(handle),
+            )
         }
         ShapeKind::WineGlass => wine_glass(&mut u),
         ShapeKind::Sphere => {
@@ -331,11 +415,23 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
         *p += shift;
     }
     params.push(("volume_m3", mesh.volume()));
-    Model { kind, mesh, params, hull_points }
+    Model {
+        kind,
+        mesh,
+        params,
+        hull_points,
+    }
 }
 
-fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static str, f32)>, Option<Mesh>) {
-    let (rf, rb, wall, stem) = (u(0.03, 0.036), u(0.03, 0.038), u(0.0015, 0.002), u(0.003, 0.005));
+fn wine_glass(
+    u: &mut impl FnMut(f32, f32) -> f32,
+) -> (Vec<Vec2>, Vec<(&'static str, f32)>, Option<Mesh>) {
+    let (rf, rb, wall, stem) = (
+        u(0.03, 0.036),
+        u(0.03, 0.038),
+        u(0.0015, 0.002),
+        u(0.003, 0.005),
+    );
     let rrim = rb * u(0.8, 0.92);
     let ah = u(0.035, 0.045);
     let hs = u(0.05, 0.07);
@@ -343,7 +439,10 @@ fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static 
     // Foot rises in a gentle cone to the stem.
     for i in 1..=6 {
         let s = i as f32 / 6.0;
-        p.push(Vec2::new(rf + (stem - rf) * s.sqrt(), 0.002 + 0.006 * s * s));
+        p.push(Vec2::new(
+            rf + (stem - rf) * s.sqrt(),
+            0.002 + 0.006 * s * s,
+        ));
     }
     p.push(Vec2::new(stem, hs));
     // Bowl: an ellipse (semi-axes rb, ah) from where it meets the stem to where r = rrim.
@@ -363,7 +462,14 @@ fn wine_glass(u: &mut impl FnMut(f32, f32) -> f32) -> (Vec<Vec2>, Vec<(&'static 
         let a = phi1i + (-FRAC_PI_2 - phi1i) * i as f32 / 20.0;
         p.push(Vec2::new((rbi * a.cos()).max(0.0), zc + ahi * a.sin()));
     }
-    let params = vec![("R_foot", rf), ("R_bowl", rb), ("R_rim", rrim), ("height", top), ("wall", wall), ("stem_radius", stem)];
+    let params = vec![
+        ("R_foot", rf),
+        ("R_bowl", rb),
+        ("R_rim", rrim),
+        ("height", top),
+        ("wall", wall),
+        ("stem_radius", stem),
+    ];
     (p, params, None)
 }
 
@@ -388,7 +494,12 @@ fn handle_tube(r_mid: f32, zc: f32, major: f32, tube: f32, slices: u32) -> Mesh 
     for i in 0..rings {
         for k in 0..around {
             let k1 = (k + 1) % around;
-            let (a0, a1, b0, b1) = (i * around + k, i * around + k1, (i + 1) * around + k, (i + 1) * around + k1);
+            let (a0, a1, b0, b1) = (
+                i * around + k,
+                i * around + k1,
+                (i + 1) * around + k,
+                (i + 1) * around + k1,
+            );
             m.triangles.push([a0, a1, b1]);
             m.triangles.push([a0, b1, b0]);
         }
@@ -404,23 +515,45 @@ mod tests {
     #[test]
     fn lathe_of_a_closed_profile_has_positive_volume_close_to_the_solid() {
         // A unit-ish cylinder r = 0.03, h = 0.05 revolved from a rectangle profile.
-        let p = [Vec2::new(0.0, 0.0), Vec2::new(0.03, 0.0), Vec2::new(0.03, 0.05), Vec2::new(0.0, 0.05)];
+        let p = [
+            Vec2::new(0.0, 0.0),
+            Vec2::new(0.03, 0.0),
+            Vec2::new(0.03, 0.05),
+            Vec2::new(0.0, 0.05),
+        ];
         let m = lathe(&p, 128);
         let exact = PI * 0.03f32.powi(2) * 0.05;
-        assert!((m.volume() - exact).abs() / exact < 2e-3, "{} vs {exact}", m.volume());
+        assert!(
+            (m.volume() - exact).abs() / exact < 2e-3,
+            "{} vs {exact}",
+            m.volume()
+        );
     }
 
     #[test]
     fn every_shape_is_closed_outward_and_thin_walled() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-        for kind in [ShapeKind::Tumbler, ShapeKind::WineGlass, ShapeKind::Bottle, ShapeKind::Bowl, ShapeKind::Mug, ShapeKind::Sphere] {
+        for kind in [
+            ShapeKind::Tumbler,
+            ShapeKind::WineGlass,
+            ShapeKind::Bottle,
+            ShapeKind::Bowl,
+            ShapeKind::Mug,
+            ShapeKind::Sphere,
+        ] {
             let m = build(kind, &mut rng, 48);
             let v = m.mesh.volume();
             let (lo, hi) = m.mesh.bounds();
             let box_v = (hi - lo).x * (hi - lo).y * (hi - lo).z;
-            assert!(v > 0.0, "{kind:?} volume {v} must be positive (outward faces)");
+            assert!(
+                v > 0.0,
+                "{kind:?} volume {v} must be positive (outward faces)"
+            );
             if kind != ShapeKind::Sphere {
-                assert!(v < 0.5 * box_v, "{kind:?} must be hollow: {v} vs box {box_v}");
+                assert!(
+                    v < 0.5 * box_v,
+                    "{kind:?} must be hollow: {v} vs box {box_v}"
+                );
             }
             assert!((lo + hi).length() < 1e-5, "{kind:?} is centred");
         }

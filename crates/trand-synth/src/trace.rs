@@ -90,7 +90,13 @@ impl RenderScene {
             let p = o + t * d;
             if t < t_max && p.x.abs() <= table.half_size_m && p.y.abs() <= table.half_size_m {
                 let point = Vec3::new(p.x, p.y, 0.0);
-                best = Some(SurfaceHit { t, point, geo_normal: Vec3::Z, shading_normal: Vec3::Z, surface: Surface::Table });
+                best = Some(SurfaceHit {
+                    t,
+                    point,
+                    geo_normal: Vec3::Z,
+                    shading_normal: Vec3::Z,
+                    surface: Surface::Table,
+                });
             }
         }
         let limit = best.map_or(t_max, |b| b.t);
@@ -99,11 +105,18 @@ impl RenderScene {
             let sh = &self.shading[h.tri as usize];
             let mut geo = tri.e1.cross(tri.e2).normalize_or_zero();
             let w = 1.0 - h.u - h.v;
-            let shading = (w * sh.normals[0] + h.u * sh.normals[1] + h.v * sh.normals[2]).normalize_or(geo);
+            let shading =
+                (w * sh.normals[0] + h.u * sh.normals[1] + h.v * sh.normals[2]).normalize_or(geo);
             if geo.dot(shading) < 0.0 {
                 geo = -geo;
             }
-            best = Some(SurfaceHit { t: h.t, point: o + h.t * d, geo_normal: geo, shading_normal: shading, surface: Surface::Object(sh.object) });
+            best = Some(SurfaceHit {
+                t: h.t,
+                point: o + h.t * d,
+                geo_normal: geo,
+                shading_normal: shading,
+                surface: Surface::Object(sh.object),
+            });
         }
         best
     }
@@ -132,11 +145,13 @@ impl RenderScene {
                 Material::Glazed { color } => {
                     let n = face_forward(h.shading_normal, h.geo_normal, d);
                     let f = schlick(-d.dot(n), GLAZE_F0);
-                    let base = Vec3::from(color) * self.diffuse_irradiance(h.point + RAY_EPS * n, n, rng);
+                    let base =
+                        Vec3::from(color) * self.diffuse_irradiance(h.point + RAY_EPS * n, n, rng);
                     let mut l = (1.0 - f) * base;
                     if weight * f > MIN_WEIGHT {
                         let r = reflect_above(d, n, h.geo_normal);
-                        l += f * self.radiance(h.point + RAY_EPS * r, r, depth + 1, weight * f, rng);
+                        l +=
+                            f * self.radiance(h.point + RAY_EPS * r, r, depth + 1, weight * f, rng);
                     }
                     l
                 }
@@ -146,25 +161,65 @@ impl RenderScene {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn glass(&self, h: &SurfaceHit, d: Vec3, ior: f32, tint: [f32; 3], depth: u32, weight: f32, rng: &mut Sampler) -> Vec3 {
+    fn glass(
+        &self,
+        h: &SurfaceHit,
+        d: Vec3,
+        ior: f32,
+        tint: [f32; 3],
+        depth: u32,
+        weight: f32,
+        rng: &mut Sampler,
+    ) -> Vec3 {
         let entering = d.dot(h.geo_normal) < 0.0;
-        let (n, geo, n1, n2) = if entering { (h.shading_normal, h.geo_normal, 1.0, ior) } else { (-h.shading_normal, -h.geo_normal, ior, 1.0) };
+        let (n, geo, n1, n2) = if entering {
+            (h.shading_normal, h.geo_normal, 1.0, ior)
+        } else {
+            (-h.shading_normal, -h.geo_normal, ior, 1.0)
+        };
         // Shading normals can face away from the ray near silhouettes; fall back to the flat one.
         let n = if d.dot(n) < 0.0 { n } else { geo };
         let r = reflect_above(d, n, geo);
         let l = match dielectric(d, n, n1, n2) {
-            Interface::TotalInternalReflection => self.radiance(h.point + RAY_EPS * r, r, depth + 1, weight, rng),
-            Interface::Split { reflectance, refracted } => {
-                let t = if refracted.dot(geo) < 0.0 { refracted } else { d };
-                let mut l = (1.0 - reflectance) * self.radiance(h.point + RAY_EPS * t, t, depth + 1, weight * (1.0 - reflectance), rng);
+            Interface::TotalInternalReflection => {
+                self.radiance(h.point + RAY_EPS * r, r, depth + 1, weight, rng)
+            }
+            Interface::Split {
+                reflectance,
+                refracted,
+            } => {
+                let t = if refracted.dot(geo) < 0.0 {
+                    refracted
+                } else {
+                    d
+                };
+                let mut l = (1.0 - reflectance)
+                    * self.radiance(
+                        h.point + RAY_EPS * t,
+                        t,
+                        depth + 1,
+                        weight * (1.0 - reflectance),
+                        rng,
+                    );
                 if weight * reflectance > MIN_WEIGHT {
-                    l += reflectance * self.radiance(h.point + RAY_EPS * r, r, depth + 1, weight * reflectance, rng);
+                    l += reflectance
+                        * self.radiance(
+                            h.point + RAY_EPS * r,
+                            r,
+                            depth + 1,
+                            weight * reflectance,
+                            rng,
+                        );
                 }
                 l
             }
         };
         // Leaving the glass: the ray travelled `t` inside it.
-        if entering { l } else { l * absorption(tint, h.t) }
+        if entering {
+            l
+        } else {
+            l * absorption(tint, h.t)
+        }
     }
 
     /// Irradiance factor at a diffuse point, so that `albedo × this` is the outgoing radiance:
@@ -193,7 +248,9 @@ impl RenderScene {
         let mut trans = Vec3::ONE;
         for _ in 0..2 * MAX_DEPTH {
             let start = o + t_done * w;
-            let Some(h) = self.intersect(start, w, len - t_done) else { return trans };
+            let Some(h) = self.intersect(start, w, len - t_done) else {
+                return trans;
+            };
             match h.surface {
                 Surface::Table => return Vec3::ZERO,
                 Surface::Object(k) => match self.objects[k as usize].material {
@@ -230,29 +287,65 @@ impl RenderScene {
     /// Follows only the transmitted branch through glass (reflected when totally internally
     /// reflected), using exactly the renderer's interface logic; stops at the first non-glass
     /// surface, when the ray leaves the scene, or after `max_segments`. For tests and debugging.
-    pub fn refraction_path(&self, mut o: Vec3, mut d: Vec3, max_segments: usize) -> Vec<PathSegment> {
+    pub fn refraction_path(
+        &self,
+        mut o: Vec3,
+        mut d: Vec3,
+        max_segments: usize,
+    ) -> Vec<PathSegment> {
         let mut path = Vec::new();
         for _ in 0..max_segments {
             let Some(h) = self.intersect(o, d, f32::INFINITY) else {
-                path.push(PathSegment { origin: o, direction: d, end: None, total_internal_reflection: false });
+                path.push(PathSegment {
+                    origin: o,
+                    direction: d,
+                    end: None,
+                    total_internal_reflection: false,
+                });
                 break;
             };
             let Surface::Object(k) = h.surface else {
-                path.push(PathSegment { origin: o, direction: d, end: Some(h.point), total_internal_reflection: false });
+                path.push(PathSegment {
+                    origin: o,
+                    direction: d,
+                    end: Some(h.point),
+                    total_internal_reflection: false,
+                });
                 break;
             };
             let Material::Glass { ior, .. } = self.objects[k as usize].material else {
-                path.push(PathSegment { origin: o, direction: d, end: Some(h.point), total_internal_reflection: false });
+                path.push(PathSegment {
+                    origin: o,
+                    direction: d,
+                    end: Some(h.point),
+                    total_internal_reflection: false,
+                });
                 break;
             };
             let entering = d.dot(h.geo_normal) < 0.0;
-            let (n, geo, n1, n2) = if entering { (h.shading_normal, h.geo_normal, 1.0, ior) } else { (-h.shading_normal, -h.geo_normal, ior, 1.0) };
+            let (n, geo, n1, n2) = if entering {
+                (h.shading_normal, h.geo_normal, 1.0, ior)
+            } else {
+                (-h.shading_normal, -h.geo_normal, ior, 1.0)
+            };
             let n = if d.dot(n) < 0.0 { n } else { geo };
             let (next, tir) = match dielectric(d, n, n1, n2) {
                 Interface::TotalInternalReflection => (reflect_above(d, n, geo), true),
-                Interface::Split { refracted, .. } => (if refracted.dot(geo) < 0.0 { refracted } else { d }, false),
+                Interface::Split { refracted, .. } => (
+                    if refracted.dot(geo) < 0.0 {
+                        refracted
+                    } else {
+                        d
+                    },
+                    false,
+                ),
             };
-            path.push(PathSegment { origin: o, direction: d, end: Some(h.point), total_internal_reflection: tir });
+            path.push(PathSegment {
+                origin: o,
+                direction: d,
+                end: Some(h.point),
+                total_internal_reflection: tir,
+            });
             o = h.point + RAY_EPS * next;
             d = next;
         }
@@ -271,7 +364,11 @@ pub struct Sampler {
 
 impl Sampler {
     fn new(seed: u64) -> Self {
-        Self { rng: rand_pcg::Pcg32::seed_from_u64(seed), light_stratum: (0.0, 0.0), inv_n: 1.0 }
+        Self {
+            rng: rand_pcg::Pcg32::seed_from_u64(seed),
+            light_stratum: (0.0, 0.0),
+            inv_n: 1.0,
+        }
     }
 
     /// Starts sample `i` of `n²`; returns its jitter in the pixel, in `[−½, ½)²`.
@@ -280,13 +377,19 @@ impl Sampler {
         self.inv_n = 1.0 / n as f32;
         self.light_stratum = (((sx + sy) % n) as f32, sx as f32);
         let inv = 1.0 / n as f64;
-        ((sx as f64 + self.rng.random::<f64>()) * inv - 0.5, (sy as f64 + self.rng.random::<f64>()) * inv - 0.5)
+        (
+            (sx as f64 + self.rng.random::<f64>()) * inv - 0.5,
+            (sy as f64 + self.rng.random::<f64>()) * inv - 0.5,
+        )
     }
 
     /// A point of the unit square for the light sample, inside this sample's light stratum.
     fn light_uv(&mut self) -> (f32, f32) {
         let (u, v) = (self.rng.random::<f32>(), self.rng.random::<f32>());
-        ((self.light_stratum.0 + u) * self.inv_n, (self.light_stratum.1 + v) * self.inv_n)
+        (
+            (self.light_stratum.0 + u) * self.inv_n,
+            (self.light_stratum.1 + v) * self.inv_n,
+        )
     }
 }
 
@@ -306,7 +409,11 @@ fn reflect_above(d: Vec3, n: Vec3, geo: Vec3) -> Vec3 {
 /// Linear radiance to 8-bit sRGB (IEC 61966-2-1 transfer curve), clamped.
 fn srgb8(v: f32) -> u8 {
     let v = v.clamp(0.0, 1.0);
-    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    let s = if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    };
     (s * 255.0 + 0.5) as u8
 }
 
@@ -324,7 +431,13 @@ pub fn encode_depth_mm(z_m: f64) -> u16 {
 }
 
 /// Renders colour, depth and instance ids of one view. `on_row` is called once per finished row.
-pub fn render_view(scene: &RenderScene, cam: &Camera, settings: RenderSettings, view_seed: u64, on_row: &(dyn Fn() + Sync)) -> ViewImages {
+pub fn render_view(
+    scene: &RenderScene,
+    cam: &Camera,
+    settings: RenderSettings,
+    view_seed: u64,
+    on_row: &(dyn Fn() + Sync),
+) -> ViewImages {
     let k = cam.intrinsics;
     let (w, h) = (k.width as usize, k.height as usize);
     let origin = cam.center().as_vec3();
@@ -334,31 +447,41 @@ pub fn render_view(scene: &RenderScene, cam: &Camera, settings: RenderSettings, 
     let mut ids = vec![0u32; w * h];
     let spp = settings.samples_per_pixel.max(1);
     let strata = (spp as f64).sqrt().round() as u32;
-    rgb.par_chunks_mut(w * 3).zip(depth_mm.par_chunks_mut(w)).zip(ids.par_chunks_mut(w)).enumerate().for_each(|(y, ((rgb_row, depth_row), id_row))| {
-        for x in 0..w {
-            // Ground truth: one ray through the pixel centre.
-            let dc: DVec3 = cam.ray_direction(x as f64, y as f64);
-            if let Some(hit) = scene.intersect(origin, dc.as_vec3(), f32::INFINITY) {
-                depth_row[x] = encode_depth_mm(hit.t as f64 * dc.dot(forward));
-                id_row[x] = match hit.surface {
-                    Surface::Table => 0,
-                    Surface::Object(o) => scene.objects[o as usize].obj_id,
-                };
+    rgb.par_chunks_mut(w * 3)
+        .zip(depth_mm.par_chunks_mut(w))
+        .zip(ids.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((rgb_row, depth_row), id_row))| {
+            for x in 0..w {
+                // Ground truth: one ray through the pixel centre.
+                let dc: DVec3 = cam.ray_direction(x as f64, y as f64);
+                if let Some(hit) = scene.intersect(origin, dc.as_vec3(), f32::INFINITY) {
+                    depth_row[x] = encode_depth_mm(hit.t as f64 * dc.dot(forward));
+                    id_row[x] = match hit.surface {
+                        Surface::Table => 0,
+                        Surface::Object(o) => scene.objects[o as usize].obj_id,
+                    };
+                }
+                // Colour: jittered samples over the pixel footprint.
+                let mut rng = Sampler::new(pixel_seed(view_seed, (y * w + x) as u64));
+                let mut sum = Vec3::ZERO;
+                for i in 0..spp {
+                    // Stratified when spp is a square; otherwise plain random (one stratum).
+                    let n = if strata * strata == spp { strata } else { 1 };
+                    let (jx, jy) = rng.start_sample(i % (n * n), n);
+                    let d = cam.ray_direction(x as f64 + jx, y as f64 + jy).as_vec3();
+                    sum += scene.radiance(origin, d, 0, 1.0, &mut rng);
+                }
+                let c = sum / spp as f32;
+                rgb_row[3 * x..3 * x + 3].copy_from_slice(&[srgb8(c.x), srgb8(c.y), srgb8(c.z)]);
             }
-            // Colour: jittered samples over the pixel footprint.
-            let mut rng = Sampler::new(pixel_seed(view_seed, (y * w + x) as u64));
-            let mut sum = Vec3::ZERO;
-            for i in 0..spp {
-                // Stratified when spp is a square; otherwise plain random (one stratum).
-                let n = if strata * strata == spp { strata } else { 1 };
-                let (jx, jy) = rng.start_sample(i % (n * n), n);
-                let d = cam.ray_direction(x as f64 + jx, y as f64 + jy).as_vec3();
-                sum += scene.radiance(origin, d, 0, 1.0, &mut rng);
-            }
-            let c = sum / spp as f32;
-            rgb_row[3 * x..3 * x + 3].copy_from_slice(&[srgb8(c.x), srgb8(c.y), srgb8(c.z)]);
-        }
-        on_row();
-    });
-    ViewImages { width: k.width, height: k.height, rgb, depth_mm, ids }
+            on_row();
+        });
+    ViewImages {
+        width: k.width,
+        height: k.height,
+        rgb,
+        depth_mm,
+        ids,
+    }
 }

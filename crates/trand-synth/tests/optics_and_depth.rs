@@ -11,9 +11,20 @@ use trand_synth::trace::{RenderSettings, render_view};
 
 fn env() -> Environment {
     Environment {
-        table: Table { half_size_m: 0.5, texture: Texture::Checker { a: [0.8; 3], b: [0.2; 3], size: 0.03 } },
+        table: Table {
+            half_size_m: 0.5,
+            texture: Texture::Checker {
+                a: [0.8; 3],
+                b: [0.2; 3],
+                size: 0.03,
+            },
+        },
         background: Background::Wall { color: [0.5; 3] },
-        light: AreaLight { centre_m: [0.0, 0.0, 1.0], half_size_m: 0.3, radiance: 7.0 },
+        light: AreaLight {
+            centre_m: [0.0, 0.0, 1.0],
+            half_size_m: 0.3,
+            radiance: 7.0,
+        },
         ambient: 0.2,
     }
 }
@@ -29,15 +40,31 @@ fn table_depth_mm(cam: &Camera, x: u32, y: u32) -> Option<f64> {
 #[test]
 fn table_depth_is_the_analytic_planar_depth_at_every_pixel_centre() {
     let scene = RenderScene::new(&[], env());
-    let cam = Camera::look_at(intrinsics(160, 120), DVec3::new(0.31, -0.22, 0.37), DVec3::new(0.0, 0.02, 0.0), DVec3::Z);
-    let img = render_view(&scene, &cam, RenderSettings { samples_per_pixel: 1 }, 1, &|| {});
+    let cam = Camera::look_at(
+        intrinsics(160, 120),
+        DVec3::new(0.31, -0.22, 0.37),
+        DVec3::new(0.0, 0.02, 0.0),
+        DVec3::Z,
+    );
+    let img = render_view(
+        &scene,
+        &cam,
+        RenderSettings {
+            samples_per_pixel: 1,
+        },
+        1,
+        &|| {},
+    );
     let mut checked = 0;
     for y in 0..120 {
         for x in 0..160 {
             let got = img.depth_mm[(y * 160 + x) as usize];
             match table_depth_mm(&cam, x, y) {
                 Some(want) => {
-                    assert!((got as f64 - want).abs() <= 0.5 + 1e-3, "pixel ({x}, {y}): {got} vs {want:.4}");
+                    assert!(
+                        (got as f64 - want).abs() <= 0.5 + 1e-3,
+                        "pixel ({x}, {y}): {got} vs {want:.4}"
+                    );
                     checked += 1;
                 }
                 None => assert_eq!(got, 0, "pixel ({x}, {y}) sees no table"),
@@ -60,10 +87,31 @@ fn sphere_depth_matches_the_ray_sphere_intersection() {
     }
     let mesh = lathe(&profile, 192);
     let centre = Vec3::new(0.01, -0.02, r);
-    let placed = [Placed { obj_id: 7, mesh: &mesh, material: Material::Glazed { color: [0.7, 0.2, 0.2] }, rotation: Quat::IDENTITY, translation: centre }];
+    let placed = [Placed {
+        obj_id: 7,
+        mesh: &mesh,
+        material: Material::Glazed {
+            color: [0.7, 0.2, 0.2],
+        },
+        rotation: Quat::IDENTITY,
+        translation: centre,
+    }];
     let scene = RenderScene::new(&placed, env());
-    let cam = Camera::look_at(intrinsics(160, 120), DVec3::new(0.2, 0.15, 0.25), centre.as_dvec3(), DVec3::Z);
-    let img = render_view(&scene, &cam, RenderSettings { samples_per_pixel: 1 }, 2, &|| {});
+    let cam = Camera::look_at(
+        intrinsics(160, 120),
+        DVec3::new(0.2, 0.15, 0.25),
+        centre.as_dvec3(),
+        DVec3::Z,
+    );
+    let img = render_view(
+        &scene,
+        &cam,
+        RenderSettings {
+            samples_per_pixel: 1,
+        },
+        2,
+        &|| {},
+    );
     let (c, s) = (cam.center(), centre.as_dvec3());
     let mut checked = 0;
     for y in 0..120u32 {
@@ -85,7 +133,11 @@ fn sphere_depth_matches_the_ray_sphere_intersection() {
             let want = 1000.0 * t * d.dot(cam.forward());
             assert_eq!(img.ids[i], 7, "pixel ({x}, {y}) hits the sphere");
             // The inscribed mesh deviates from the sphere by at most r(1 − cos(π/96)) ≈ 0.016 mm.
-            assert!((img.depth_mm[i] as f64 - want).abs() <= 0.5 + 0.05, "pixel ({x}, {y}): {} vs {want:.3}", img.depth_mm[i]);
+            assert!(
+                (img.depth_mm[i] as f64 - want).abs() <= 0.5 + 0.05,
+                "pixel ({x}, {y}): {} vs {want:.3}",
+                img.depth_mm[i]
+            );
             checked += 1;
         }
     }
@@ -95,9 +147,23 @@ fn sphere_depth_matches_the_ray_sphere_intersection() {
 /// A 1 cm thick glass disc of radius 20 cm, top face at z = 0.06.
 fn slab_scene(ior: f32) -> (RenderScene, f32, f32) {
     let (thick, top) = (0.01f32, 0.06f32);
-    let profile = [Vec2::new(0.0, 0.0), Vec2::new(0.2, 0.0), Vec2::new(0.2, thick), Vec2::new(0.0, thick)];
+    let profile = [
+        Vec2::new(0.0, 0.0),
+        Vec2::new(0.2, 0.0),
+        Vec2::new(0.2, thick),
+        Vec2::new(0.0, thick),
+    ];
     let mesh = lathe(&profile, 256);
-    let placed = [Placed { obj_id: 1, mesh: &mesh, material: Material::Glass { ior, tint: [1.0; 3] }, rotation: Quat::IDENTITY, translation: Vec3::new(0.0, 0.0, top - thick) }];
+    let placed = [Placed {
+        obj_id: 1,
+        mesh: &mesh,
+        material: Material::Glass {
+            ior,
+            tint: [1.0; 3],
+        },
+        rotation: Quat::IDENTITY,
+        translation: Vec3::new(0.0, 0.0, top - thick),
+    }];
     (RenderScene::new(&placed, env()), thick, top)
 }
 
@@ -113,12 +179,19 @@ fn glass_slab_shifts_a_ray_sideways_by_the_analytic_amount_and_keeps_its_directi
         // in air → in glass → out (ends on the table)
         assert_eq!(path.len(), 3, "{path:?}");
         let out = path[2];
-        assert!((out.direction - d).length() < 1e-5, "exit direction {:?} vs {d:?}", out.direction);
+        assert!(
+            (out.direction - d).length() < 1e-5,
+            "exit direction {:?} vs {d:?}",
+            out.direction
+        );
         // Lateral shift s = h sin(θ₁ − θ₂) / cos θ₂ with sin θ₂ = sin θ₁ / n.
         let th2 = (th.sin() / ior).asin();
         let want = thick * (th - th2).sin() / th2.cos();
         let got = (out.origin - o).cross(d).length();
-        assert!((got - want).abs() < 2e-6, "θ = {theta_deg}°: shift {got} vs {want}");
+        assert!(
+            (got - want).abs() < 2e-6,
+            "θ = {theta_deg}°: shift {got} vs {want}"
+        );
     }
 }
 
@@ -132,10 +205,19 @@ fn light_past_the_critical_angle_is_totally_internally_reflected_inside_the_slab
         let o = Vec3::new(0.0, 0.0, top - 0.5 * thick);
         let d = Vec3::new(angle.sin(), 0.0, angle.cos());
         let path = scene.refraction_path(o, d, 6);
-        assert_eq!(path[0].total_internal_reflection, trapped, "angle {:.2}° vs critical {:.2}°", angle.to_degrees(), critical.to_degrees());
+        assert_eq!(
+            path[0].total_internal_reflection,
+            trapped,
+            "angle {:.2}° vs critical {:.2}°",
+            angle.to_degrees(),
+            critical.to_degrees()
+        );
         if trapped {
             // Bounces between the faces stay inside the slab with the mirrored direction.
-            assert!(path.iter().take(4).all(|s| s.total_internal_reflection), "{path:?}");
+            assert!(
+                path.iter().take(4).all(|s| s.total_internal_reflection),
+                "{path:?}"
+            );
             assert!((path[1].direction.z + d.z).abs() < 1e-5);
         }
     }

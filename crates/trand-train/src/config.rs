@@ -16,7 +16,10 @@ use crate::optim::{AdamParams, GroupLr, LrSchedule, group_index};
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("reading {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("parsing TOML: {0}")]
     Parse(#[from] toml::de::Error),
     #[error("invalid configuration: {0}")]
@@ -140,7 +143,11 @@ impl LearningRates {
     pub fn at(&self, iteration: u32, spatial_scale: f64) -> GroupLr {
         let mut out = GroupLr::uniform(0.0);
         for g in ParamGroup::ALL {
-            let s = if g == ParamGroup::Means { spatial_scale } else { 1.0 };
+            let s = if g == ParamGroup::Means {
+                spatial_scale
+            } else {
+                1.0
+            };
             out.0[group_index(g)] = self.schedule(g).at(iteration) * s;
         }
         out
@@ -392,7 +399,10 @@ impl TrainConfig {
             ));
         }
         if !(0.0..=1.0).contains(&self.image_loss.lambda_dssim) {
-            return bad(format!("lambda_dssim {} outside [0, 1]", self.image_loss.lambda_dssim));
+            return bad(format!(
+                "lambda_dssim {} outside [0, 1]",
+                self.image_loss.lambda_dssim
+            ));
         }
         if self.densify.split_children == 0 || self.densify.split_scale_divisor <= 0.0 {
             return bad("split needs ≥ 1 child and a positive scale divisor".into());
@@ -446,7 +456,9 @@ mod tests {
         assert_eq!(lr.get(ParamGroup::Opacity), 0.05);
         assert!((c.learning_rates(1000, 1.0).get(ParamGroup::ObjLogits) - 0.0025).abs() < 1e-15);
         // Densify at 20, 40, …, 1000; reset at 100, 200, …; screen size only after 100.
-        assert!(!c.densify.densify_now(0) && c.densify.densify_now(20) && !c.densify.densify_now(30));
+        assert!(
+            !c.densify.densify_now(0) && c.densify.densify_now(20) && !c.densify.densify_now(30)
+        );
         assert!(c.densify.reset_opacity_now(100) && !c.densify.reset_opacity_now(150));
         assert_eq!(c.densify.size_threshold(100), None);
         assert_eq!(c.densify.size_threshold(120), Some(20.0));
@@ -463,13 +475,19 @@ mod tests {
         assert_eq!(lr.get(ParamGroup::ObjLogits), 0.1);
         // Unscaled position lr: 1.6e-4·0.01^(1050/1500).
         assert!((lr.get(ParamGroup::Means) - 1.6e-4 * 0.01f64.powf(0.7)).abs() < 1e-15);
-        let densify_its: Vec<u32> = c.iteration_range().filter(|&i| c.densify.densify_now(i)).collect();
+        let densify_its: Vec<u32> = c
+            .iteration_range()
+            .filter(|&i| c.densify.densify_now(i))
+            .collect();
         assert_eq!(densify_its, vec![1050, 1100]);
         assert!(
             c.iteration_range()
                 .all(|i| !c.densify.reset_opacity_now(i) && c.densify.size_threshold(i).is_none())
         );
-        assert!(c.iteration_range().all(|i| !c.object_loss.active.is_active(i)));
+        assert!(
+            c.iteration_range()
+                .all(|i| !c.object_loss.active.is_active(i))
+        );
     }
 
     #[test]
@@ -500,7 +518,9 @@ mod tests {
             Err(ConfigError::Parse(_))
         ));
         assert!(matches!(
-            TrainConfig::from_toml_str("[lr]\nmeans = { log_linear = { from = 0.0, to = 1e-6, max_steps = 10 } }"),
+            TrainConfig::from_toml_str(
+                "[lr]\nmeans = { log_linear = { from = 0.0, to = 1e-6, max_steps = 10 } }"
+            ),
             Err(ConfigError::Invalid(_))
         ));
     }

@@ -54,7 +54,8 @@ impl DensifyStats {
         for i in 0..self.len() {
             if radii[i] > 0.0 {
                 self.max_radii[i] = self.max_radii[i].max(radii[i]);
-                self.grad_accum[i] += (grad2d[i][0] * grad2d[i][0] + grad2d[i][1] * grad2d[i][1]).sqrt();
+                self.grad_accum[i] +=
+                    (grad2d[i][0] * grad2d[i][0] + grad2d[i][1] * grad2d[i][1]).sqrt();
                 self.denom[i] += 1;
             }
         }
@@ -130,7 +131,9 @@ pub fn densify_and_prune<G: Rng + ?Sized>(
         .filter(|&i| grads[i] >= cfg.grad_threshold && max_scale(&surfels.log_scales[i]) > dense)
         .collect();
     let n_children = cfg.split_children;
-    let child_src: Vec<usize> = (0..n_children).flat_map(|_| split_idx.iter().copied()).collect();
+    let child_src: Vec<usize> = (0..n_children)
+        .flat_map(|_| split_idx.iter().copied())
+        .collect();
     let mut children = surfels.gather(&child_src);
     let log_div = cfg.split_scale_divisor.ln();
     for (c, &parent) in child_src.iter().enumerate() {
@@ -233,18 +236,33 @@ mod tests {
     fn clone_split_prune_counts_and_moments_stay_aligned() {
         // extent 1 → dense = 0.01. 0: small, hot → clone. 1: large, hot → split. 2: large, cold → kept.
         // 3: transparent → pruned. 4: small, cold → kept.
-        let mut s = scene(&[(0.005, 0.5), (0.05, 0.5), (0.05, 0.5), (0.005, 0.001), (0.005, 0.5)]);
+        let mut s = scene(&[
+            (0.005, 0.5),
+            (0.05, 0.5),
+            (0.05, 0.5),
+            (0.005, 0.001),
+            (0.005, 0.5),
+        ]);
         let mut adam = adam_with_moments(&mut s);
         let mut stats = DensifyStats::new(5);
         stats.add(
             &[3.0, 4.0, 5.0, 1.0, 0.0],
-            &[[3e-4, 0.0], [0.0, 5e-4], [1e-5, 0.0], [1.0, 0.0], [1.0, 1.0]],
+            &[
+                [3e-4, 0.0],
+                [0.0, 5e-4],
+                [1e-5, 0.0],
+                [1.0, 0.0],
+                [1.0, 1.0],
+            ],
         );
         let cfg = DensifyConfig::default();
         let mut rng = Pcg64::seed_from_u64(7);
         let r = densify_and_prune(&mut s, &mut adam, &mut stats, &cfg, 1.0, None, &mut rng);
         // Clones: 0 and 3 (3 is small and hot, then pruned with its clone for its opacity); split: 1.
-        assert_eq!((r.cloned, r.split, r.pruned, r.before, r.after), (2, 1, 2, 5, 6));
+        assert_eq!(
+            (r.cloned, r.split, r.pruned, r.before, r.after),
+            (2, 1, 2, 5, 6)
+        );
         // Order: surviving originals 0, 2, 4, then the clone of 0, then the two children of 1.
         assert_eq!(
             s.sh_dc.iter().map(|c| c[0]).collect::<Vec<_>>(),
@@ -326,7 +344,8 @@ mod tests {
             &mut Pcg64::seed_from_u64(1),
         );
         let n = s.len() as f64;
-        let std = |k: usize| (s.means.iter().map(|m| (m[k] as f64).powi(2)).sum::<f64>() / n).sqrt();
+        let std =
+            |k: usize| (s.means.iter().map(|m| (m[k] as f64).powi(2)).sum::<f64>() / n).sqrt();
         assert!(
             (std(0) - 0.4).abs() < 0.02 && (std(1) - 0.1).abs() < 0.005,
             "{} {}",

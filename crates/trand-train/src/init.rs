@@ -34,7 +34,9 @@ use trand_core::{Camera, Surfels, SurfelsError};
 pub enum InitError {
     #[error("bounds must come from the cameras, but there are none")]
     NoCameras,
-    #[error("the cameras' optical axes do not determine a focus point (all parallel and not looking down)")]
+    #[error(
+        "the cameras' optical axes do not determine a focus point (all parallel and not looking down)"
+    )]
     DegenerateCameras,
     #[error("slab box is empty or not finite: min {min:?}, max {max:?}")]
     BadBox { min: [f64; 3], max: [f64; 3] },
@@ -62,9 +64,17 @@ impl SlabBox {
     }
 
     /// Box centred under the cameras' common focus (see the module docs).
-    pub fn from_cameras(cameras: &[Camera], distance_factor: f64, height_ratio: f64) -> Result<Self, InitError> {
+    pub fn from_cameras(
+        cameras: &[Camera],
+        distance_factor: f64,
+        height_ratio: f64,
+    ) -> Result<Self, InitError> {
         let f = focus_point(cameras)?;
-        let dist = cameras.iter().map(|c| (c.center() - f).length()).sum::<f64>() / cameras.len() as f64;
+        let dist = cameras
+            .iter()
+            .map(|c| (c.center() - f).length())
+            .sum::<f64>()
+            / cameras.len() as f64;
         let half = distance_factor * dist;
         let b = Self {
             min: [f.x - half, f.y - half, 0.0],
@@ -75,7 +85,9 @@ impl SlabBox {
     }
 
     fn validate(&self) -> Result<(), InitError> {
-        let ok = (0..3).all(|k| self.min[k].is_finite() && self.max[k].is_finite() && self.max[k] > self.min[k]);
+        let ok = (0..3).all(|k| {
+            self.min[k].is_finite() && self.max[k].is_finite() && self.max[k] > self.min[k]
+        });
         if ok {
             Ok(())
         } else {
@@ -161,7 +173,12 @@ impl Default for InitConfig {
 }
 
 /// Slab points in TRAN-D's group order.
-pub fn slab_points(b: &SlabBox, num_volume: usize, num_per_face: usize, rng: &mut Pcg64) -> Vec<[f32; 3]> {
+pub fn slab_points(
+    b: &SlabBox,
+    num_volume: usize,
+    num_per_face: usize,
+    rng: &mut Pcg64,
+) -> Vec<[f32; 3]> {
     let mut pts = Vec::with_capacity(num_volume + 4 * num_per_face);
     let lerp = |k: usize, u: f64| b.min[k] + (b.max[k] - b.min[k]) * u;
     // (fixed axis, value) per face; None = the volume.
@@ -173,7 +190,11 @@ pub fn slab_points(b: &SlabBox, num_volume: usize, num_per_face: usize, rng: &mu
         Some((0, b.max[0])),
     ];
     for g in groups {
-        let count = if g.is_some() { num_per_face } else { num_volume };
+        let count = if g.is_some() {
+            num_per_face
+        } else {
+            num_volume
+        };
         for _ in 0..count {
             let mut p = [0.0f64; 3];
             for (k, v) in p.iter_mut().enumerate() {
@@ -195,14 +216,18 @@ pub fn knn_log_scales(points: &[[f32; 3]]) -> Vec<f32> {
     if points.len() < 2 {
         return vec![0.5 * MIN_MEAN_SQ.ln(); points.len()];
     }
-    let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(points).expect("finite points build a kd-tree");
+    let tree: ImmutableKdTree<f32, 3> =
+        ImmutableKdTree::new_from_slice(points).expect("finite points build a kd-tree");
     let k = points.len().min(4);
     let nk = NonZero::new(k).expect("k ≥ 2");
     points
         .par_iter()
         .enumerate()
         .map(|(i, p)| {
-            let nn = tree.query(p).nearest_n::<SquaredEuclidean<f32>>(nk).execute();
+            let nn = tree
+                .query(p)
+                .nearest_n::<SquaredEuclidean<f32>>(nk)
+                .execute();
             let others: Vec<f32> = nn
                 .iter()
                 .filter(|r| r.item as usize != i)
@@ -304,14 +329,22 @@ mod tests {
                 .all(|p| p[0].abs() <= 0.5 && p[1].abs() <= 0.5 && (0.0..=0.1).contains(&p[2]))
         );
         assert!(s.means[..300].iter().all(|p| p[1] == -0.5));
-        assert!(s.means[300..800].iter().all(|p| p[0].abs() < 0.5 && p[1].abs() < 0.5));
+        assert!(
+            s.means[300..800]
+                .iter()
+                .all(|p| p[0].abs() < 0.5 && p[1].abs() < 0.5)
+        );
         assert!(s.means[800..1100].iter().all(|p| p[1] == 0.5));
         assert!(s.means[1100..1400].iter().all(|p| p[0] == -0.5));
         assert!(s.means[1400..].iter().all(|p| p[0] == 0.5));
         let dc = rgb_to_dc(127.0 / 255.0);
         assert!((dc + 0.00695).abs() < 1e-4);
         assert!(s.sh_dc.iter().chain(&s.mask_dc).all(|c| *c == [dc; 3]));
-        assert!(s.opacity_logits.iter().all(|&o| (sigmoid(o) - 0.1).abs() < 1e-6));
+        assert!(
+            s.opacity_logits
+                .iter()
+                .all(|&o| (sigmoid(o) - 0.1).abs() < 1e-6)
+        );
         assert!(s.obj_logits.iter().all(|&l| l == 0.0));
         assert!(s.quats.iter().flatten().all(|&q| (0.0..1.0).contains(&q)));
     }
@@ -343,7 +376,11 @@ mod tests {
                 .collect();
             d.sort_by(|a, b| a.partial_cmp(b).unwrap());
             let want = 0.5 * ((d[0] + d[1] + d[2]) / 3.0).max(1e-7).ln();
-            assert!((got[i] - want).abs() < 1e-4, "point {i}: {} vs {want}", got[i]);
+            assert!(
+                (got[i] - want).abs() < 1e-4,
+                "point {i}: {} vs {want}",
+                got[i]
+            );
         }
     }
 

@@ -37,7 +37,11 @@ impl LrSchedule {
     pub fn at(&self, step: u32) -> f64 {
         match *self {
             LrSchedule::Constant(lr) => lr,
-            LrSchedule::LogLinear { from, to, max_steps } => {
+            LrSchedule::LogLinear {
+                from,
+                to,
+                max_steps,
+            } => {
                 if from == 0.0 && to == 0.0 {
                     return 0.0;
                 }
@@ -55,7 +59,11 @@ impl LrSchedule {
     pub fn scaled(&self, s: f64) -> Self {
         match *self {
             LrSchedule::Constant(lr) => LrSchedule::Constant(lr * s),
-            LrSchedule::LogLinear { from, to, max_steps } => LrSchedule::LogLinear {
+            LrSchedule::LogLinear {
+                from,
+                to,
+                max_steps,
+            } => LrSchedule::LogLinear {
                 from: from * s,
                 to: to * s,
                 max_steps,
@@ -179,7 +187,13 @@ impl Adam {
     /// One Adam step on the listed groups only; the others (parameters, moments, step counts) are left
     /// untouched. The reference skips a group whose tensor was replaced in this iteration (it has no
     /// gradient), e.g. the opacity right after an opacity reset.
-    pub fn step_groups(&mut self, params: &mut Surfels, grads: &Surfels, lr: &GroupLr, groups: &[ParamGroup]) {
+    pub fn step_groups(
+        &mut self,
+        params: &mut Surfels,
+        grads: &Surfels,
+        lr: &GroupLr,
+        groups: &[ParamGroup],
+    ) {
         assert_eq!(
             params.len(),
             self.m.len(),
@@ -200,7 +214,12 @@ impl Adam {
             .zip(self.v.groups_mut().into_iter().zip(grad_groups))
         {
             debug_assert_eq!(g, gg);
-            assert_eq!(p.len(), gr.len(), "gradient of {} has the wrong length", g.name());
+            assert_eq!(
+                p.len(),
+                gr.len(),
+                "gradient of {} has the wrong length",
+                g.name()
+            );
             if !groups.contains(&g) {
                 continue;
             }
@@ -214,7 +233,9 @@ impl Adam {
                 .zip(m.par_chunks_mut(CHUNK))
                 .zip(v.par_chunks_mut(CHUNK).zip(gr.par_chunks(CHUNK)))
                 .for_each(|((p, m), (v, gr))| {
-                    for (((p, m), v), &gr) in p.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(gr) {
+                    for (((p, m), v), &gr) in
+                        p.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(gr)
+                    {
                         *m = b1 * *m + ob1 * gr;
                         *v = b2 * *v + ob2 * gr * gr;
                         *p -= step_size * *m / (v.sqrt() * inv_bc2_sqrt + eps);
@@ -371,11 +392,20 @@ mod tests {
         g.opacity_logits[0] = 1.0;
         let mut adam = Adam::new(&p, AdamParams::default());
         let p0 = p.clone();
-        let others: Vec<ParamGroup> = ParamGroup::ALL.into_iter().filter(|&x| x != ParamGroup::Opacity).collect();
+        let others: Vec<ParamGroup> = ParamGroup::ALL
+            .into_iter()
+            .filter(|&x| x != ParamGroup::Opacity)
+            .collect();
         adam.step_groups(&mut p, &g, &GroupLr::uniform(0.01), &others);
         assert_eq!(p.opacity_logits, p0.opacity_logits);
         assert_eq!(adam.m.opacity_logits, vec![0.0, 0.0]);
-        assert_eq!((adam.steps_of(ParamGroup::Opacity), adam.steps_of(ParamGroup::Means)), (0, 1));
+        assert_eq!(
+            (
+                adam.steps_of(ParamGroup::Opacity),
+                adam.steps_of(ParamGroup::Means)
+            ),
+            (0, 1)
+        );
         assert_ne!(p.means, p0.means);
         // The next full step is the opacity group's first: bias-corrected to exactly −lr·sign(g).
         adam.step(&mut p, &g, &GroupLr::uniform(0.01));

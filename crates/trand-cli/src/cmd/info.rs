@@ -5,6 +5,11 @@ pub struct Args {}
 
 pub fn run(_a: Args) -> anyhow::Result<()> {
     println!("trand {}", env!("CARGO_PKG_VERSION"));
-    println!("threads: {}", std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    println!(
+        "threads: {}",
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    );
     Ok(())
 }

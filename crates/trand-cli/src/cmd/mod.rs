@@ -4,5 +4,5 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod reconstruct;
-pub mod update;
 pub mod synth;
+pub mod update;

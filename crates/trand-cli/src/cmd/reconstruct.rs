@@ -5,14 +5,14 @@
 //! it (Adam moments restart from zero). The run folder appears only when the run is complete.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{read_sequence_with, LoadOptions};
-use trand_pipeline::{reconstruct, InitMode, Method, PipelineError, ReconstructOptions};
+use trand_io::{LoadOptions, read_sequence_with};
+use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, reconstruct};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -56,7 +56,9 @@ fn parse_method(s: &str) -> Result<Method, String> {
         "trand" => Ok(Method::Trand),
         "no-object-loss" => Ok(Method::NoObjectLoss),
         "plain-2dgs" => Ok(Method::Plain2dgs),
-        _ => Err(format!("unknown method `{s}` (trand, no-object-loss, plain-2dgs)")),
+        _ => Err(format!(
+            "unknown method `{s}` (trand, no-object-loss, plain-2dgs)"
+        )),
     }
 }
 
@@ -72,8 +74,10 @@ fn parse_init(s: &str) -> Result<InitMode, String> {
 pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     let mut o = match &a.config {
         Some(p) => {
-            let s = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            toml::from_str::<ReconstructOptions>(&s).with_context(|| format!("{}: invalid configuration", p.display()))?
+            let s =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            toml::from_str::<ReconstructOptions>(&s)
+                .with_context(|| format!("{}: invalid configuration", p.display()))?
         }
         None => ReconstructOptions::default(),
     };
@@ -111,7 +115,11 @@ fn checkpoint_dir(out: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
-fn write_checkpoint(dir: &Path, surfels: &trand_core::Surfels, iteration: u32) -> anyhow::Result<()> {
+fn write_checkpoint(
+    dir: &Path,
+    surfels: &trand_core::Surfels,
+    iteration: u32,
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     trand_io::write_surfels_ply(&dir.join("surfels.ply"), surfels)?;
     let j = serde_json::json!({ "iteration": iteration });
@@ -128,18 +136,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let ckpt = checkpoint_dir(&a.out);
     let start = if a.resume {
         let j: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(ckpt.join("checkpoint.json")).with_context(|| format!("{}: no checkpoint to resume", ckpt.display()))?,
+            &std::fs::read(ckpt.join("checkpoint.json"))
+                .with_context(|| format!("{}: no checkpoint to resume", ckpt.display()))?,
         )
         .with_context(|| format!("{}/checkpoint.json: malformed", ckpt.display()))?;
-        let it = j["iteration"].as_u64().with_context(|| format!("{}/checkpoint.json: field `iteration`", ckpt.display()))? as u32;
+        let it = j["iteration"]
+            .as_u64()
+            .with_context(|| format!("{}/checkpoint.json: field `iteration`", ckpt.display()))?
+            as u32;
         let s = trand_io::read_surfels_ply(&ckpt.join("surfels.ply"))?;
         eprintln!("resuming from iteration {it} ({} surfels)", s.len());
         Some((s, it))
     } else {
         None
     };
-    let seq = read_sequence_with(&a.data, &LoadOptions { object_channels: Some(opts.num_objects), ..Default::default() })
-        .with_context(|| format!("reading {}", a.data.display()))?;
+    let seq = read_sequence_with(
+        &a.data,
+        &LoadOptions {
+            object_channels: Some(opts.num_objects),
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("reading {}", a.data.display()))?;
 
     let cancel = Arc::new(AtomicBool::new(false));
     {
@@ -149,9 +167,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let total = opts.train.iterations as u64;
     let pb = ProgressBar::new(total);
     pb.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} it  {msg}  eta {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {pos}/{len} it  {msg}  eta {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
     );
     let every = a.checkpoint_every.max(1);
     let mut last_ckpt = Ok(());
@@ -159,7 +179,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         pb.set_position((r.iteration - opts.train.start_iteration) as u64);
         pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
         if pb.is_hidden() && r.iteration.is_multiple_of(100) {
-            eprintln!("iteration {}: loss {:.4}, {} surfels", r.iteration, r.loss, r.num_surfels);
+            eprintln!(
+                "iteration {}: loss {:.4}, {} surfels",
+                r.iteration, r.loss, r.num_surfels
+            );
         }
         if r.iteration.is_multiple_of(every) || cancel.load(Ordering::SeqCst) {
             last_ckpt = write_checkpoint(&ckpt, s, r.iteration);
@@ -170,7 +193,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Err(PipelineError::Interrupted(it)) => {
             pb.abandon();
             last_ckpt?;
-            eprintln!("interrupted at iteration {it}; checkpoint in {} (continue with --resume)", ckpt.display());
+            eprintln!(
+                "interrupted at iteration {it}; checkpoint in {} (continue with --resume)",
+                ckpt.display()
+            );
             std::process::exit(130);
         }
         Err(e) => return Err(e).with_context(|| format!("reconstructing {}", a.data.display())),
@@ -221,7 +247,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rec.surfels.len(),
         a.out.display()
     );
-    if seq.test_t0.iter().all(|v| v.depth.is_some() && v.instance.is_some()) && !seq.test_t0.is_empty() {
+    if seq
+        .test_t0
+        .iter()
+        .all(|v| v.depth.is_some() && v.instance.is_some())
+        && !seq.test_t0.is_empty()
+    {
         let (_, m) = trand_eval::evaluate_run(&a.out, &a.data, Some(trand_io::State::T0))?;
         print!("{}", trand_eval::table(&[("t0", &m)]));
     }

@@ -55,15 +55,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     c.height = a.height.unwrap_or(c.height);
     c.test_views = a.test_views.unwrap_or(c.test_views);
     c.samples_per_pixel = a.spp.unwrap_or(c.samples_per_pixel);
-    c.existing = if a.force { ExistingOutput::Replace } else { ExistingOutput::Refuse };
-    c.progress = if a.quiet { Progress::Hidden } else { Progress::Bar };
+    c.existing = if a.force {
+        ExistingOutput::Replace
+    } else {
+        ExistingOutput::Refuse
+    };
+    c.progress = if a.quiet {
+        Progress::Hidden
+    } else {
+        Progress::Bar
+    };
     let s = trand_synth::generate(&c)?;
     println!(
         "wrote {} views to {} (removed object {}, stack {}) in {:.1} s (physics {:.1} s, render+write {:.1} s)",
         s.views,
         s.out.display(),
         s.removed_obj_id,
-        if s.stack_verified { "verified" } else { "not verified" },
+        if s.stack_verified {
+            "verified"
+        } else {
+            "not verified"
+        },
         s.total_s,
         s.physics_s,
         s.render_s

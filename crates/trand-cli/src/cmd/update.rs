@@ -4,10 +4,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context};
+use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{read_sequence_with, select_train_views, LoadOptions, View, ViewCount};
-use trand_pipeline::update::{update, MeshDepth, Stage, SurfelMotion, UpdateOptions};
+use trand_io::{LoadOptions, View, ViewCount, read_sequence_with, select_train_views};
+use trand_pipeline::update::{MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
 
 #[derive(clap::Args)]
@@ -79,27 +79,60 @@ fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
         .iter()
         .chain(&seq.train_t0)
         .find(|v| v.frame == 0)
-        .with_context(|| format!("{}: no train_1 (or train_0) frame 0 to take the new camera from", a.data.display()))?;
+        .with_context(|| {
+            format!(
+                "{}: no train_1 (or train_0) frame 0 to take the new camera from",
+                a.data.display()
+            )
+        })?;
     let mut v = base.clone();
     if let (Some(img), Some(mask)) = (&a.image, &a.mask) {
         let rgb = trand_io::read_rgb8(img)?;
         let k = &v.camera.intrinsics;
         if (rgb.width, rgb.height) != (k.width, k.height) {
-            bail!("{}: image is {}x{} but the camera is {}x{}", img.display(), rgb.width, rgb.height, k.width, k.height);
+            bail!(
+                "{}: image is {}x{} but the camera is {}x{}",
+                img.display(),
+                rgb.width,
+                rgb.height,
+                k.width,
+                k.height
+            );
         }
-        let inst = trand_io::read_gray16(mask).or_else(|_| trand_io::read_gray8(mask).map(|m| {
-            trand_io::Image::from_vec(m.width, m.height, 1, m.data.iter().map(|&x| x as u16).collect()).expect("same size")
-        }))?;
+        let inst = trand_io::read_gray16(mask).or_else(|_| {
+            trand_io::read_gray8(mask).map(|m| {
+                trand_io::Image::from_vec(
+                    m.width,
+                    m.height,
+                    1,
+                    m.data.iter().map(|&x| x as u16).collect(),
+                )
+                .expect("same size")
+            })
+        })?;
         if !rgb.same_size(&inst) {
-            bail!("{}: mask is {}x{} but the image is {}x{}", mask.display(), inst.width, inst.height, rgb.width, rgb.height);
+            bail!(
+                "{}: mask is {}x{} but the image is {}x{}",
+                mask.display(),
+                inst.width,
+                inst.height,
+                rgb.width,
+                rgb.height
+            );
         }
         v.name = img.display().to_string();
         v.rgb = Some(rgb);
         v.instance = Some(inst);
     }
-    let inst = v.instance.as_ref().with_context(|| format!("{}: the new image has no instance mask", v.name))?;
+    let inst = v
+        .instance
+        .as_ref()
+        .with_context(|| format!("{}: the new image has no instance mask", v.name))?;
     if inst.data.iter().all(|&i| i == 0) {
-        bail!("{}: the new image's mask is empty (no object pixels)", v.name);
+        bail!(
+            "{}: the new image's mask is empty (no object pixels)",
+            v.name
+        );
     }
     if v.rgb.is_none() {
         bail!("{}: the new image has no RGB", v.name);
@@ -114,23 +147,36 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let run_json_path = a.run.join("run.json");
     let run_json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&run_json_path).with_context(|| format!("{}: not a run folder", a.run.display()))?,
+        &std::fs::read(&run_json_path)
+            .with_context(|| format!("{}: not a run folder", a.run.display()))?,
     )
     .with_context(|| format!("{}: malformed JSON", run_json_path.display()))?;
     if run_json["state"] != "t0" {
-        bail!("{}: field `state` is {} but update needs a t0 run", run_json_path.display(), run_json["state"]);
+        bail!(
+            "{}: field `state` is {} but update needs a t0 run",
+            run_json_path.display(),
+            run_json["state"]
+        );
     }
     let cfg_path = a.run.join("config.toml");
     let ropts: ReconstructOptions = toml::from_str(
-        &std::fs::read_to_string(&cfg_path).with_context(|| format!("reading {}", cfg_path.display()))?,
+        &std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("reading {}", cfg_path.display()))?,
     )
     .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
-    let channels: Vec<(u16, usize)> = serde_json::from_value(run_json["object_channels"].clone())
-        .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
+    let channels: Vec<(u16, usize)> =
+        serde_json::from_value(run_json["object_channels"].clone())
+            .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
     let surfels = trand_io::read_surfels_ply(&a.run.join("surfels.ply"))?;
 
-    let seq = read_sequence_with(&a.data, &LoadOptions { object_channels: Some(ropts.num_objects), ..Default::default() })
-        .with_context(|| format!("reading {}", a.data.display()))?;
+    let seq = read_sequence_with(
+        &a.data,
+        &LoadOptions {
+            object_channels: Some(ropts.num_objects),
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("reading {}", a.data.display()))?;
     let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
     if run_json["sequence_fingerprint"].as_str() != Some(fp.as_str()) {
         bail!(
@@ -143,8 +189,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let view = new_view(&a, &seq)?;
 
     let mut opts = match &a.config {
-        Some(p) => toml::from_str::<UpdateOptions>(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
-            .with_context(|| format!("{}: invalid configuration", p.display()))?,
+        Some(p) => toml::from_str::<UpdateOptions>(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("{}: invalid configuration", p.display()))?,
         None => UpdateOptions::default(),
     };
     opts.physics = a.physics.unwrap_or(opts.physics);
@@ -164,11 +212,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         12 => ViewCount::Twelve,
         _ => ViewCount::Six,
     };
-    let cams: Vec<_> = select_train_views(&seq.train_t0, vc).iter().map(|v| v.camera).collect();
+    let cams: Vec<_> = select_train_views(&seq.train_t0, vc)
+        .iter()
+        .map(|v| v.camera)
+        .collect();
     let scale = trand_pipeline::update::SceneScale::from_cameras(&cams, ropts.downsample);
 
     let pb = ProgressBar::new(100);
-    pb.set_style(ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {msg}").expect("valid template").progress_chars("=> "));
+    pb.set_style(
+        ProgressStyle::with_template("{prefix:>10} [{bar:30}] {pos}/{len} {msg}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     let mut progress = |stage: &str, i: u32, n: u32| {
         pb.set_prefix(stage.to_string());
         pb.set_length(n as u64);
@@ -181,8 +236,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         pb.set_message(format!("loss {:.4}", r.loss));
     };
     let sup = ropts.method.supervision();
-    let up = update(surfels, &channels, &view, scale, sup, &opts, &mut progress, &mut on_step)
-        .with_context(|| format!("updating {}", a.run.display()))?;
+    let up = update(
+        surfels,
+        &channels,
+        &view,
+        scale,
+        sup,
+        &opts,
+        &mut progress,
+        &mut on_step,
+    )
+    .with_context(|| format!("updating {}", a.run.display()))?;
     pb.finish_and_clear();
 
     let t_render = Instant::now();
@@ -232,20 +296,35 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         cfg.insert_str(0, "# plain-2dgs run: no object channels, so no detection and no physics; refinement only\n");
     }
     let mesh = up.mesh.clone();
-    trand_pipeline::outputs::write_run_with(&a.out, &out_json, &cfg, &up.surfels, &renders, &|dir| {
-        if let Some(m) = mesh.as_ref().filter(|m| !m.vertices.is_empty()) {
-            trand_io::write_mesh_ply(&dir.join("mesh.ply"), m)?;
-        }
-        Ok(())
-    })?;
+    trand_pipeline::outputs::write_run_with(
+        &a.out,
+        &out_json,
+        &cfg,
+        &up.surfels,
+        &renders,
+        &|dir| {
+            if let Some(m) = mesh.as_ref().filter(|m| !m.vertices.is_empty()) {
+                trand_io::write_mesh_ply(&dir.join("mesh.ply"), m)?;
+            }
+            Ok(())
+        },
+    )?;
     for m in &up.matches {
         match m.new_id {
-            Some(n) => println!("object {} -> new instance {n} (IoU {:.2})", m.object_id, m.iou),
-            None => println!("object {} -> not found (best IoU {:.2}): removed", m.object_id, m.iou),
+            Some(n) => println!(
+                "object {} -> new instance {n} (IoU {:.2})",
+                m.object_id, m.iou
+            ),
+            None => println!(
+                "object {} -> not found (best IoU {:.2}): removed",
+                m.object_id, m.iou
+            ),
         }
     }
     if up.removed.is_empty() {
-        println!("no object was found missing: nothing deleted, physics ran on the unchanged scene");
+        println!(
+            "no object was found missing: nothing deleted, physics ran on the unchanged scene"
+        );
     }
     println!(
         "updated in {total:.1} s (detection {:.1}, meshing {:.1}, simulation {:.1}, refinement {:.1}): {} surfels, {} particles -> {}",
@@ -257,7 +336,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         up.num_particles,
         a.out.display()
     );
-    if !seq.test_t1.is_empty() && seq.test_t1.iter().all(|v| v.depth.is_some() && v.instance.is_some()) {
+    if !seq.test_t1.is_empty()
+        && seq
+            .test_t1
+            .iter()
+            .all(|v| v.depth.is_some() && v.instance.is_some())
+    {
         let (_, m) = trand_eval::evaluate_run(&a.out, &a.data, Some(trand_io::State::T1))?;
         print!("{}", trand_eval::table(&[("t1", &m)]));
     }

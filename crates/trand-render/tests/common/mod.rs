@@ -4,14 +4,14 @@
 use std::path::PathBuf;
 
 use rand::{RngExt, SeedableRng};
-use trand_core::{math::logit, sh::SH_C0, Camera, Intrinsics};
+use trand_core::{Camera, Intrinsics, math::logit, sh::SH_C0};
 use trand_render::ParamsOf;
 
 /// `../shared` beside the workspace (or `$TRAND_SHARED`).
 pub fn shared_dir() -> PathBuf {
-    std::env::var_os("TRAND_SHARED").map(PathBuf::from).unwrap_or_else(|| {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared")
-    })
+    std::env::var_os("TRAND_SHARED")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared"))
 }
 
 pub struct Fixture {
@@ -35,7 +35,11 @@ pub fn load_fixture(name: &str) -> Option<Fixture> {
     for n in names {
         let a = npz.by_name(&n).expect("read").expect("present");
         let v = if a.dtype() == npyz::DType::new_scalar("<i8".parse().expect("type string")) {
-            a.into_vec::<i64>().expect("i64").into_iter().map(|v| v as f64).collect()
+            a.into_vec::<i64>()
+                .expect("i64")
+                .into_iter()
+                .map(|v| v as f64)
+                .collect()
         } else {
             a.into_vec::<f64>().expect("f64")
         };
@@ -44,9 +48,24 @@ pub fn load_fixture(name: &str) -> Option<Fixture> {
     let s = |k: &str| arrays[k][0];
     let (w, h) = (s("W") as u32, s("H") as u32);
     let vm = &arrays["viewmat"];
-    let r = [[vm[0], vm[1], vm[2]], [vm[4], vm[5], vm[6]], [vm[8], vm[9], vm[10]]];
+    let r = [
+        [vm[0], vm[1], vm[2]],
+        [vm[4], vm[5], vm[6]],
+        [vm[8], vm[9], vm[10]],
+    ];
     let t = [vm[3], vm[7], vm[11]];
-    let camera = Camera::new(Intrinsics { fx: s("fx"), fy: s("fy"), cx: s("cx"), cy: s("cy"), width: w, height: h }, r, t);
+    let camera = Camera::new(
+        Intrinsics {
+            fx: s("fx"),
+            fy: s("fy"),
+            cx: s("cx"),
+            cy: s("cy"),
+            width: w,
+            height: h,
+        },
+        r,
+        t,
+    );
     let n = arrays["opacities"].len();
     let mut p = ParamsOf::<f64>::zeros(n, 0, 1);
     let mut scales = Vec::new();
@@ -65,7 +84,13 @@ pub fn load_fixture(name: &str) -> Option<Fixture> {
         }
     }
     let opacities = arrays["opacities"].clone();
-    Some(Fixture { camera, params: p, scales, opacities, arrays })
+    Some(Fixture {
+        camera,
+        params: p,
+        scales,
+        opacities,
+        arrays,
+    })
 }
 
 /// A camera looking at the origin from `dist` metres, tilted, small image.

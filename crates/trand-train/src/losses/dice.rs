@@ -17,7 +17,9 @@ use trand_core::Real;
 /// Why a one-hot target cannot be built.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DiceError {
-    #[error("instance id {id} maps to channel {channel}, but the object map has only {num_channels} channels")]
+    #[error(
+        "instance id {id} maps to channel {channel}, but the object map has only {num_channels} channels"
+    )]
     ChannelOutOfRange {
         id: u16,
         channel: usize,
@@ -95,7 +97,11 @@ pub fn dice<R: Real>(pred: &[R], target: &[R], num_channels: usize) -> (R, Vec<R
 /// `id_to_channel` lists `(instance id, channel)` pairs. Id 0 is the background and maps to channel 0
 /// unless the table says otherwise; any other id missing from the table is an error (a silently dropped
 /// object would train towards "background").
-pub fn one_hot_target(ids: &[u16], id_to_channel: &[(u16, usize)], num_channels: usize) -> Result<Vec<f32>, DiceError> {
+pub fn one_hot_target(
+    ids: &[u16],
+    id_to_channel: &[(u16, usize)],
+    num_channels: usize,
+) -> Result<Vec<f32>, DiceError> {
     if num_channels == 0 {
         return Err(DiceError::NoChannels);
     }
@@ -112,7 +118,11 @@ pub fn one_hot_target(ids: &[u16], id_to_channel: &[(u16, usize)], num_channels:
         lut[id as usize] = Some(channel);
     }
     let mut out = vec![0.0f32; ids.len() * num_channels];
-    for (pixel, (&id, px)) in ids.iter().zip(out.chunks_exact_mut(num_channels)).enumerate() {
+    for (pixel, (&id, px)) in ids
+        .iter()
+        .zip(out.chunks_exact_mut(num_channels))
+        .enumerate()
+    {
         let c = lut[id as usize].ok_or(DiceError::UnknownId { id, pixel })?;
         px[c] = 1.0;
     }

@@ -86,7 +86,10 @@ fn unproject<R: Real>(depth: &[R], k: &Pinhole<R>, width: usize) -> Vec<[R; 3]> 
 /// Difference vectors `(a, b)` at an interior pixel.
 #[inline]
 fn diffs<R: Real>(pts: &[[R; 3]], p: usize, width: usize) -> ([R; 3], [R; 3]) {
-    (sub(pts[p + width], pts[p - width]), sub(pts[p + 1], pts[p - 1]))
+    (
+        sub(pts[p + width], pts[p - width]),
+        sub(pts[p + 1], pts[p - 1]),
+    )
 }
 
 #[inline]
@@ -96,7 +99,12 @@ fn is_interior(p: usize, width: usize, height: usize) -> bool {
 }
 
 /// Unit normals (camera frame, per pixel, zero on the border) of a depth map.
-pub fn depth_to_normal<R: Real>(depth: &[R], k: &Pinhole<R>, width: usize, height: usize) -> Vec<[R; 3]> {
+pub fn depth_to_normal<R: Real>(
+    depth: &[R],
+    k: &Pinhole<R>,
+    width: usize,
+    height: usize,
+) -> Vec<[R; 3]> {
     assert_eq!(depth.len(), width * height, "depth map size");
     let pts = unproject(depth, k, width);
     let eps = R::from_f64(NORMALIZE_EPS);
@@ -175,7 +183,11 @@ pub fn normal_consistency<R: Real>(
             let rn = rend_normal[p];
             let term = R::ONE - al * dot(rn, n);
             let g_rend = [-al * n[0] * inv_n, -al * n[1] * inv_n, -al * n[2] * inv_n];
-            let g_n = [-al * rn[0] * inv_n, -al * rn[1] * inv_n, -al * rn[2] * inv_n];
+            let g_n = [
+                -al * rn[0] * inv_n,
+                -al * rn[1] * inv_n,
+                -al * rn[2] * inv_n,
+            ];
             let g_c = if len > eps {
                 let d = dot(g_n, n);
                 [
@@ -286,11 +298,18 @@ mod tests {
             let l = dot(v, v).sqrt();
             v.map(|x| x / l)
         };
-        let depth: Vec<f64> = (0..w * h).map(|p| -1.0 / dot(nn, k.ray(p % w, p / w))).collect();
+        let depth: Vec<f64> = (0..w * h)
+            .map(|p| -1.0 / dot(nn, k.ray(p % w, p / w)))
+            .collect();
         let n = depth_to_normal(&depth, &k, w, h);
         for p in (0..w * h).filter(|&p| is_interior(p, w, h)) {
             for i in 0..3 {
-                assert!((n[p][i] - nn[i]).abs() < 1e-9, "pixel {p}: {:?} vs {:?}", n[p], nn);
+                assert!(
+                    (n[p][i] - nn[i]).abs() < 1e-9,
+                    "pixel {p}: {:?} vs {:?}",
+                    n[p],
+                    nn
+                );
             }
         }
     }
@@ -315,7 +334,11 @@ mod tests {
         );
         let flat: Vec<f64> = rn.iter().flatten().copied().collect();
         let gflat: Vec<f64> = r.grad_normal.iter().flatten().copied().collect();
-        let as_normals = |f: &[f64]| f.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+        let as_normals = |f: &[f64]| {
+            f.chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>()
+        };
         assert_grad_matches_fd(
             &flat,
             &gflat,

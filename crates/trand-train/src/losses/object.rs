@@ -117,7 +117,11 @@ pub struct ObjectLoss<R> {
 impl<R: Real> ObjectLoss<R> {
     /// Adds `weight · grad` to a position gradient (e.g. `grads.means` of the whole step).
     pub fn add_scaled_to(&self, means_grad: &mut [[R; 3]], weight: R) {
-        assert_eq!(means_grad.len(), self.grad.len(), "position gradient length");
+        assert_eq!(
+            means_grad.len(),
+            self.grad.len(),
+            "position gradient length"
+        );
         for (o, g) in means_grad.iter_mut().zip(&self.grad) {
             for k in 0..3 {
                 o[k] += weight * g[k];
@@ -134,12 +138,20 @@ fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
 
 /// Members of every channel (index = channel; channel 0, the background, included) by softmax
 /// probability `> threshold`, in storage order.
-pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: f64) -> Vec<Vec<usize>> {
+pub fn object_members<R: Real>(
+    obj_logits: &[R],
+    num_objects: usize,
+    threshold: f64,
+) -> Vec<Vec<usize>> {
     assert!(
         threshold >= 0.5,
         "membership threshold {threshold} < 0.5 would make membership ambiguous"
     );
-    assert_eq!(obj_logits.len() % num_objects.max(1), 0, "object logits length");
+    assert_eq!(
+        obj_logits.len() % num_objects.max(1),
+        0,
+        "object logits length"
+    );
     let thr = R::from_f64(threshold);
     let owner: Vec<Option<usize>> = obj_logits
         .par_chunks(num_objects)
@@ -165,7 +177,11 @@ pub fn object_members<R: Real>(obj_logits: &[R], num_objects: usize, threshold: 
 /// FPS of that length. Requires `count ≤ points.len()`.
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(d >= m)` on purpose: NaN handling, see the loop
 pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], count: usize) -> Vec<usize> {
-    assert!(count <= points.len(), "FPS of {count} from {} points", points.len());
+    assert!(
+        count <= points.len(),
+        "FPS of {count} from {} points",
+        points.len()
+    );
     if count == 0 {
         return Vec::new();
     }
@@ -219,7 +235,9 @@ pub fn k_nearest<R: Real>(points: &[[R; 3]], query: &[R; 3], k: usize) -> Vec<us
 /// G·n distance evaluations per level (112 centres × ~10 k members per object, every iteration from 100
 /// on: a tenth of a training iteration); the tree answers in O(k log n).
 fn tree_k_nearest<R: Real>(tree: &ImmutableKdTree<f64, 3>, query: &[R; 3], k: usize) -> Vec<usize> {
-    let Some(nk) = NonZero::new(k) else { return Vec::new() };
+    let Some(nk) = NonZero::new(k) else {
+        return Vec::new();
+    };
     let q = query.map(R::to_f64);
     let mut nn: Vec<(f64, usize)> = tree
         .query(&q)
@@ -290,7 +308,11 @@ pub fn select<R: Real>(
     num_objects: usize,
     params: &ObjectLossParams,
 ) -> Vec<ObjectSelection> {
-    assert_eq!(obj_logits.len(), points.len() * num_objects, "object logits length");
+    assert_eq!(
+        obj_logits.len(),
+        points.len() * num_objects,
+        "object logits length"
+    );
     let members = object_members(obj_logits, num_objects, params.membership_threshold);
     members
         .into_par_iter()
@@ -351,13 +373,20 @@ fn add_scaled<R: Real>(g: &mut [R; 3], s: R, u: &[R; 3]) {
 }
 
 /// The loss and its position gradient for fixed discrete choices.
-pub fn evaluate<R: Real>(points: &[[R; 3]], selection: &[ObjectSelection], params: &ObjectLossParams) -> ObjectLoss<R> {
+pub fn evaluate<R: Real>(
+    points: &[[R; 3]],
+    selection: &[ObjectSelection],
+    params: &ObjectLossParams,
+) -> ObjectLoss<R> {
     let mut grad = vec![[R::ZERO; 3]; points.len()];
     let mut value = R::ZERO;
     let two = R::from_f64(2.0);
     let mut objects_per_level = Vec::with_capacity(params.levels.len());
     for (li, level) in params.levels.iter().enumerate() {
-        let sels: Vec<&LevelSelection> = selection.iter().filter_map(|o| o.levels.get(li)?.as_ref()).collect();
+        let sels: Vec<&LevelSelection> = selection
+            .iter()
+            .filter_map(|o| o.levels.get(li)?.as_ref())
+            .collect();
         objects_per_level.push(sels.len());
         if sels.is_empty() {
             continue;
@@ -380,8 +409,14 @@ pub fn evaluate<R: Real>(points: &[[R; 3]], selection: &[ObjectSelection], param
             }
             let s_mean = s.iter().fold(R::ZERO, |acc, &v| acc + v) * inv_g;
             let d_mean = d.iter().fold(R::ZERO, |acc, &v| acc + v) * inv_g;
-            let var_s = s.iter().fold(R::ZERO, |acc, &v| acc + (v - s_mean) * (v - s_mean)) * inv_g;
-            let var_d = d.iter().fold(R::ZERO, |acc, &v| acc + (v - d_mean) * (v - d_mean)) * inv_g;
+            let var_s = s
+                .iter()
+                .fold(R::ZERO, |acc, &v| acc + (v - s_mean) * (v - s_mean))
+                * inv_g;
+            let var_d = d
+                .iter()
+                .fold(R::ZERO, |acc, &v| acc + (v - d_mean) * (v - d_mean))
+                * inv_g;
             value += ws * var_s + wd * var_d;
             for a in 0..g {
                 let ci = sel.centres[a];
@@ -437,7 +472,11 @@ mod tests {
         let idx: Vec<usize> = (0..200).step_by(2).collect();
         let sub: Vec<[f64; 3]> = idx.iter().map(|&i| p[i]).collect();
         let got = farthest_point_sampling(&sub, 20);
-        assert_eq!(farthest_point_sampling(&sub, 7), got[..7].to_vec(), "prefix property");
+        assert_eq!(
+            farthest_point_sampling(&sub, 7),
+            got[..7].to_vec(),
+            "prefix property"
+        );
         let mut chosen = vec![0usize];
         while chosen.len() < 20 {
             let score = |j: usize| {
@@ -476,7 +515,11 @@ mod tests {
         let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts64).unwrap();
         for q in (0..2000).step_by(37) {
             for k in [1usize, 16, 32] {
-                assert_eq!(tree_k_nearest(&tree, &p[q], k), k_nearest(&p, &p[q], k), "query {q}, k {k}");
+                assert_eq!(
+                    tree_k_nearest(&tree, &p[q], k),
+                    k_nearest(&p, &p[q], k),
+                    "query {q}, k {k}"
+                );
             }
         }
     }
@@ -535,9 +578,14 @@ mod tests {
     fn small_objects_skip_levels_they_cannot_fill() {
         let (p, logits, k) = scene();
         let sel = select(&p, &logits, k, &small_params());
-        assert_eq!(sel.iter().map(|o| o.channel).collect::<Vec<_>>(), vec![1, 2]);
+        assert_eq!(
+            sel.iter().map(|o| o.channel).collect::<Vec<_>>(),
+            vec![1, 2]
+        );
         // Object 2 has 30 members: levels with G = 8, 16 run, G = 40 is skipped.
-        assert!(sel[1].levels[0].is_some() && sel[1].levels[1].is_some() && sel[1].levels[2].is_none());
+        assert!(
+            sel[1].levels[0].is_some() && sel[1].levels[1].is_some() && sel[1].levels[2].is_none()
+        );
         assert!(sel[0].levels.iter().all(Option::is_some));
         let loss = evaluate(&p, &sel, &small_params());
         assert_eq!(loss.objects_per_level, vec![2, 2, 1]);

@@ -81,7 +81,12 @@ pub fn l1<R: Real>(pred: &[R], gt: &[R]) -> (R, Vec<R>) {
                 }
             }
             let mut tail = R::ZERO;
-            for ((o, &p), &g) in oc.into_remainder().iter_mut().zip(pc.remainder()).zip(gc.remainder()) {
+            for ((o, &p), &g) in oc
+                .into_remainder()
+                .iter_mut()
+                .zip(pc.remainder())
+                .zip(gc.remainder())
+            {
                 *o = sign(p, g);
                 tail += (p - g).abs();
             }
@@ -158,7 +163,15 @@ fn hconv<R: Real>(k: &[R; SSIM_WINDOW], src: &[R], dst: &mut [R]) {
 /// `x, y, x², y², xy` of the planes `xp, yp` (`W` wide, `H` high), written into the centres of the
 /// padded rows `out[q][r..r + W]` (the pads stay zero).
 #[inline]
-fn vconv5<R: Real>(k: &[R; SSIM_WINDOW], xp: &[R], yp: &[R], w: usize, h: usize, row: usize, out: &mut [&mut [R]; 5]) {
+fn vconv5<R: Real>(
+    k: &[R; SSIM_WINDOW],
+    xp: &[R],
+    yp: &[R],
+    w: usize,
+    h: usize,
+    row: usize,
+    out: &mut [&mut [R]; 5],
+) {
     let r = SSIM_RADIUS;
     let t0 = r.saturating_sub(row);
     let t1 = SSIM_WINDOW.min(h + r - row);
@@ -203,7 +216,13 @@ fn vconv5<R: Real>(k: &[R; SSIM_WINDOW], xp: &[R], yp: &[R], w: usize, h: usize,
 }
 
 /// Mean SSIM of `pred` against `gt` and the gradient of that mean with respect to `pred`.
-pub fn ssim<R: Real>(pred: &[R], gt: &[R], width: usize, height: usize, channels: usize) -> (R, Vec<R>) {
+pub fn ssim<R: Real>(
+    pred: &[R],
+    gt: &[R],
+    width: usize,
+    height: usize,
+    channels: usize,
+) -> (R, Vec<R>) {
     check_shape(pred.len(), width, height, channels, "ssim pred");
     check_shape(gt.len(), width, height, channels, "ssim gt");
     let n_pix = width * height;
@@ -276,37 +295,46 @@ pub fn ssim<R: Real>(pred: &[R], gt: &[R], width: usize, height: usize, channels
 
     // Backward: filter a, b, c with G (self-adjoint) and combine, one output row per task.
     let mut grad_planes = vec![R::ZERO; n_pix * channels];
-    grad_planes.par_chunks_mut(w).enumerate().for_each(|(task, out)| {
-        let (ch, row) = (task / h, task % h);
-        let mut v = vec![R::ZERO; 3 * (w + 2 * r)];
-        let (va, rest) = v.split_at_mut(w + 2 * r);
-        let (vb, vc) = rest.split_at_mut(w + 2 * r);
-        for (t, &kt) in k.iter().enumerate() {
-            let iy = row as isize + t as isize - r as isize;
-            if iy < 0 || iy >= h as isize {
-                continue;
+    grad_planes
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(task, out)| {
+            let (ch, row) = (task / h, task % h);
+            let mut v = vec![R::ZERO; 3 * (w + 2 * r)];
+            let (va, rest) = v.split_at_mut(w + 2 * r);
+            let (vb, vc) = rest.split_at_mut(w + 2 * r);
+            for (t, &kt) in k.iter().enumerate() {
+                let iy = row as isize + t as isize - r as isize;
+                if iy < 0 || iy >= h as isize {
+                    continue;
+                }
+                let src = &abc[(ch * h + iy as usize) * 3 * w..(ch * h + iy as usize + 1) * 3 * w];
+                axpy(kt, &src[..w], &mut va[r..r + w]);
+                axpy(kt, &src[w..2 * w], &mut vb[r..r + w]);
+                axpy(kt, &src[2 * w..], &mut vc[r..r + w]);
             }
-            let src = &abc[(ch * h + iy as usize) * 3 * w..(ch * h + iy as usize + 1) * 3 * w];
-            axpy(kt, &src[..w], &mut va[r..r + w]);
-            axpy(kt, &src[w..2 * w], &mut vb[r..r + w]);
-            axpy(kt, &src[2 * w..], &mut vc[r..r + w]);
-        }
-        let mut f = vec![R::ZERO; 3 * w];
-        {
-            let (ga, rest) = f.split_at_mut(w);
-            let (gb, gc) = rest.split_at_mut(w);
-            hconv(&k, va, ga);
-            hconv(&k, vb, gb);
-            hconv(&k, vc, gc);
-        }
-        let base = ch * n_pix + row * w;
-        let (xs, ys) = (&x[base..base + w], &y[base..base + w]);
-        let (ga, rest) = f.split_at(w);
-        let (gb, gc) = rest.split_at(w);
-        for ((((o, &xv), &yv), (&a, &b)), &c) in out.iter_mut().zip(xs).zip(ys).zip(ga.iter().zip(gb)).zip(gc) {
-            *o = a + two * xv * b + yv * c;
-        }
-    });
+            let mut f = vec![R::ZERO; 3 * w];
+            {
+                let (ga, rest) = f.split_at_mut(w);
+                let (gb, gc) = rest.split_at_mut(w);
+                hconv(&k, va, ga);
+                hconv(&k, vb, gb);
+                hconv(&k, vc, gc);
+            }
+            let base = ch * n_pix + row * w;
+            let (xs, ys) = (&x[base..base + w], &y[base..base + w]);
+            let (ga, rest) = f.split_at(w);
+            let (gb, gc) = rest.split_at(w);
+            for ((((o, &xv), &yv), (&a, &b)), &c) in out
+                .iter_mut()
+                .zip(xs)
+                .zip(ys)
+                .zip(ga.iter().zip(gb))
+                .zip(gc)
+            {
+                *o = a + two * xv * b + yv * c;
+            }
+        });
     let mut grad = vec![R::ZERO; n_pix * channels];
     for (p, px) in grad.chunks_exact_mut(channels).enumerate() {
         for (c, g) in px.iter_mut().enumerate() {
@@ -339,7 +367,11 @@ pub fn photometric<R: Real>(
     let (l1v, g1) = l1(pred, gt);
     let (sv, gs) = ssim(pred, gt, width, height, channels);
     let wl1 = R::ONE - lambda_dssim;
-    let grad = g1.iter().zip(&gs).map(|(&a, &b)| wl1 * a - lambda_dssim * b).collect();
+    let grad = g1
+        .iter()
+        .zip(&gs)
+        .map(|(&a, &b)| wl1 * a - lambda_dssim * b)
+        .collect();
     Photometric {
         value: wl1 * l1v + lambda_dssim * (R::ONE - sv),
         l1: l1v,
@@ -360,7 +392,10 @@ mod tests {
             let mut s = 0.0;
             for dy in 0..SSIM_WINDOW {
                 for dx in 0..SSIM_WINDOW {
-                    let (iy, ix) = (row as isize + dy as isize - 5, col as isize + dx as isize - 5);
+                    let (iy, ix) = (
+                        row as isize + dy as isize - 5,
+                        col as isize + dx as isize - 5,
+                    );
                     if iy < 0 || ix < 0 || iy >= h as isize || ix >= w as isize {
                         continue;
                     }
@@ -440,7 +475,13 @@ mod tests {
         let y = rand_vec(9, w * h * c, 0.0, 1.0);
         let p = photometric(&x, &y, w, h, c, 0.2);
         assert!((p.value - (0.8 * p.l1 + 0.2 * (1.0 - p.ssim))).abs() < 1e-15);
-        assert_grad_matches_fd(&x, &p.grad, |x| photometric(x, &y, w, h, c, 0.2).value, 1e-7, 1e-7);
+        assert_grad_matches_fd(
+            &x,
+            &p.grad,
+            |x| photometric(x, &y, w, h, c, 0.2).value,
+            1e-7,
+            1e-7,
+        );
     }
 
     #[test]
