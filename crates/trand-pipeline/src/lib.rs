@@ -12,7 +12,10 @@
 
 pub mod outputs;
 pub mod reconstruct;
+pub mod relocalise;
 pub mod targets;
+#[cfg(test)]
+mod test_scene;
 pub mod trainer;
 pub mod update;
 

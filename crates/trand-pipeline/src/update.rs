@@ -1,11 +1,16 @@
 //! The t = 1 scene update after objects are taken away (paper §3.4, official-code notes §5 with the
 //! choices of §10):
 //!
-//! 1. **Detection**: render the t = 0 object map from the new view; assign the new mask's instances to
-//!    the rendered objects with the Hungarian method on the cost `1 − IoU + w·(centroid distance /
-//!    image diagonal)`; t = 0 objects left without an instance were removed (`removed` overrides).
-//!    The centroid term matters when an object toppled far from where it stood (IoU near 0). Finding
-//!    nothing removed is a valid outcome.
+//! 1. **Detection** ([`Identity`]): when the new mask's instance ids are t = 0 object ids (the same
+//!    contract the t = 0 views already meet: one id per object across all views, which the authors get
+//!    by propagating SAM2 masks from frame to frame), a t = 0 object missing from the new mask was
+//!    removed (the authors' rule with their off-by-count bug fixed, notes §5.1). Otherwise (per-image
+//!    ids), notes §10 row 3: render the t = 0 object map from the new view and assign the new mask's
+//!    instances to the rendered objects with the Hungarian method on the cost `1 − IoU + w·(centroid
+//!    distance / image diagonal)`; t = 0 objects left without an instance were removed. Overlap alone
+//!    cannot tell which object went when one stood on another and fell off it after the removal (the
+//!    fallen object overlaps the removed one's old place better than its own). `removed` overrides
+//!    both. Finding nothing removed is a valid outcome.
 //! 2. **Deletion** of every surfel whose softmax probability of a removed object exceeds ½.
 //! 3. **Meshing**: depth of the remaining surfels (expected depth by default, §10 row 14) from a ring of
 //!    virtual views plus one from below the table, TSDF fusion, surface nets, vertices labelled by the
@@ -13,6 +18,8 @@
 //! 4. **Particles**: object surfel centres plus mesh vertices (optional interior fill).
 //! 5. **MLS-MPM**, all objects in one solver; 6. each surfel moves with its particle (optionally also
 //!    rotating by the particle's polar rotation).
+//! 6b. **Relocalisation** (trand's addition, [`crate::relocalise`]): an object whose silhouette now
+//!    misses its instance mask in the new image is moved rigidly to fit it.
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
 //!    object lr 0.1, densification with the t = 0 scene extent).
 
@@ -29,6 +36,7 @@ use trand_physics::{
 use trand_render::{GeometryMaps, Maps, RenderSettings, render};
 use trand_train::config::TrainConfig;
 
+use crate::relocalise::{Relocalise, Relocation, relocalise};
 use crate::targets::{self, Supervision};
 use crate::trainer::{StepReport, Trainer};
 use crate::{PipelineError, Result};
@@ -57,6 +65,19 @@ pub enum SurfelMotion {
     RigidPerObject,
 }
 
+/// How the t = 0 objects are found among the new mask's instances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Identity {
+    /// `ObjectIds` when every instance id of the new mask is a t = 0 object id, else `Overlap`.
+    Auto,
+    /// The new mask's ids are the t = 0 object ids (a tracker carried them over; BOP masks are named
+    /// by object id): an object whose id is absent was removed.
+    ObjectIds,
+    /// The ids are per image: match by overlap of the rendered t = 0 objects (IoU + centroid, Hungarian).
+    Overlap,
+}
+
 /// A stage that can be switched off for the ablations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -71,8 +92,12 @@ pub enum Stage {
 pub struct UpdateOptions {
     pub physics: Stage,
     pub refine: Stage,
+    /// Silhouette relocalisation after the simulation.
+    pub relocalise: Stage,
+    pub relocalise_settings: Relocalise,
     /// Removed object ids given by the user instead of detection.
     pub removed: Option<Vec<u16>>,
+    pub identity: Identity,
     /// Weight of the centroid distance (in image diagonals) in the matching cost `1 − IoU + w·d`, so that
     /// an object that moved far (low IoU) still finds its new instance rather than being taken as removed.
     pub centroid_weight: f64,
@@ -132,7 +157,10 @@ impl Default for UpdateOptions {
         Self {
             physics: Stage::On,
             refine: Stage::On,
+            relocalise: Stage::On,
+            relocalise_settings: Relocalise::default(),
             removed: None,
+            identity: Identity::Auto,
             centroid_weight: 0.5,
             mesh_depth: MeshDepth::Expected,
             motion: SurfelMotion::Translate,
@@ -166,24 +194,30 @@ pub struct Update {
     pub matches: Vec<Match>,
     pub removed: Vec<u16>,
     pub deleted_surfels: usize,
+    /// Which detection rule was used (`Auto` resolved).
+    pub identity: Identity,
+    pub relocations: Vec<Relocation>,
     pub mesh: Option<trand_io::Mesh>,
     pub num_particles: usize,
     pub max_displacement_m: f32,
     pub detection_s: f64,
     pub meshing_s: f64,
     pub simulation_s: f64,
+    pub relocalisation_s: f64,
     pub refinement_s: f64,
     pub curve: Vec<(u32, f32)>,
 }
 
-/// Step 1: IoU matching between the rendered t = 0 objects and the new instances.
+/// Step 1: finds each t = 0 object among the new instances (by id or by overlap, see [`Identity`]);
+/// returns the matches and the rule used (`Auto` resolved). The IoU of every match is reported.
 pub fn detect(
     surfels: &Surfels,
     channels: &[(u16, usize)],
     view: &View,
     settings: &RenderSettings,
     centroid_weight: f64,
-) -> Result<Vec<Match>> {
+    identity: Identity,
+) -> Result<(Vec<Match>, Identity)> {
     let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View {
         view: view.name.clone(),
         what: "no instance mask".into(),
@@ -223,6 +257,36 @@ pub fn detect(
         .iter()
         .map(|r| new_masks.iter().map(|m| iou(r, m)).collect())
         .collect();
+    let identity = match identity {
+        Identity::Auto if new_ids.iter().all(|i| channels.iter().any(|c| c.0 == *i)) => {
+            Identity::ObjectIds
+        }
+        Identity::Auto => Identity::Overlap,
+        other => other,
+    };
+    if identity == Identity::ObjectIds {
+        let matches = channels
+            .iter()
+            .enumerate()
+            .map(
+                |(r, &(object_id, channel))| match new_ids.iter().position(|&i| i == object_id) {
+                    Some(c) => Match {
+                        object_id,
+                        channel,
+                        new_id: Some(object_id),
+                        iou: ious[r][c],
+                    },
+                    None => Match {
+                        object_id,
+                        channel,
+                        new_id: None,
+                        iou: ious[r].iter().copied().fold(0.0, f64::max),
+                    },
+                },
+            )
+            .collect();
+        return Ok((matches, identity));
+    }
     let w = inst.width as usize;
     let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
     let centroid = |m: &[bool]| {
@@ -257,7 +321,7 @@ pub fn detect(
     } else {
         hungarian(&cost)
     };
-    Ok(channels
+    let matches = channels
         .iter()
         .enumerate()
         .map(|(r, &(object_id, channel))| match assign[r] {
@@ -274,7 +338,8 @@ pub fn detect(
                 iou: ious[r].iter().copied().fold(0.0, f64::max),
             },
         })
-        .collect())
+        .collect();
+    Ok((matches, identity))
 }
 
 /// Probability of channel `c` for every surfel.
@@ -506,16 +571,17 @@ pub fn update(
     };
     let t0 = Instant::now();
     let object_aware = supervision == Supervision::ObjectAware;
-    let matches = if object_aware {
+    let (matches, identity) = if object_aware {
         detect(
             &surfels,
             channels,
             new_view,
             &settings,
             opts.centroid_weight,
+            opts.identity,
         )?
     } else {
-        Vec::new()
+        (Vec::new(), opts.identity)
     };
     let removed: Vec<u16> = match &opts.removed {
         Some(r) => {
@@ -554,6 +620,7 @@ pub fn update(
         .copied()
         .filter(|c| !removed.contains(&c.0))
         .collect();
+    let unmoved = surfels.clone();
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
             let (m, n, d, a, b) =
@@ -562,6 +629,43 @@ pub fn update(
         } else {
             (None, 0, 0.0, 0.0, 0.0)
         };
+
+    let t_reloc = Instant::now();
+    let mut relocations = Vec::new();
+    if let (Stage::On, true, Some(inst)) =
+        (opts.relocalise, object_aware, new_view.instance.as_ref())
+    {
+        let objects: Vec<(u16, Vec<u32>, u16)> = remaining
+            .iter()
+            .filter_map(|&(id, c)| {
+                let new_id = matches.iter().find(|m| m.object_id == id)?.new_id?;
+                let p = channel_probs(&surfels, c);
+                Some((
+                    id,
+                    (0..surfels.len() as u32)
+                        .filter(|&i| p[i as usize] > 0.5)
+                        .collect(),
+                    new_id,
+                ))
+            })
+            .collect();
+        let ground = match opts.mpm.ground {
+            trand_physics::Ground::Sticky { height } => height as f64,
+            trand_physics::Ground::None => 0.0,
+        };
+        relocations = relocalise(
+            &mut surfels,
+            &unmoved,
+            &objects,
+            &new_view.camera,
+            inst,
+            ground,
+            &settings,
+            &opts.relocalise_settings,
+        )?;
+    }
+    drop(unmoved);
+    let relocalisation_s = t_reloc.elapsed().as_secs_f64();
 
     let t3 = Instant::now();
     let mut curve = Vec::new();
@@ -614,12 +718,15 @@ pub fn update(
         matches,
         removed,
         deleted_surfels: deleted,
+        identity,
+        relocations,
         mesh,
         num_particles,
         max_displacement_m: max_disp,
         detection_s,
         meshing_s,
         simulation_s,
+        relocalisation_s,
         refinement_s,
         curve,
     })
@@ -628,7 +735,76 @@ pub fn update(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_scene::{camera, cylinder};
     use trand_core::surfels::Surfel;
+
+    /// Object 1 (channel 0) stood at A, object 2 (channel 1) at B. In the new image object 1 is gone and
+    /// object 2 lies where object 1 stood (it stood on it and fell), its mask carrying id 2.
+    fn fell_into_the_removed_ones_place() -> (Surfels, View) {
+        let mut s = cylinder(0.0, 0.0, 0);
+        s.append(&cylinder(0.12, 0.04, 1));
+        let one = cylinder(0.0, 0.0, 0);
+        let out = render::<f32, _>(&one, &camera(), &RenderSettings::default()).unwrap();
+        let data: Vec<u16> = out
+            .alpha
+            .iter()
+            .map(|&a| if a > 0.5 { 2 } else { 0 })
+            .collect();
+        let inst = trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap();
+        let view = View {
+            name: "new".into(),
+            frame: 0,
+            camera: camera(),
+            rgb: None,
+            instance: Some(inst),
+            depth: None,
+        };
+        (s, view)
+    }
+
+    #[test]
+    fn object_ids_tell_which_object_went_where_overlap_cannot() {
+        let (s, view) = fell_into_the_removed_ones_place();
+        let channels = [(1, 0), (2, 1)];
+        let settings = RenderSettings::default();
+        let (by_id, rule) = detect(&s, &channels, &view, &settings, 0.5, Identity::Auto).unwrap();
+        assert_eq!(rule, Identity::ObjectIds);
+        assert_eq!(
+            (by_id[0].new_id, by_id[1].new_id),
+            (None, Some(2)),
+            "{by_id:?}"
+        );
+        // Overlap alone takes the fallen object for the one that stood there.
+        let (by_overlap, rule) =
+            detect(&s, &channels, &view, &settings, 0.5, Identity::Overlap).unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!(
+            (by_overlap[0].new_id, by_overlap[1].new_id),
+            (Some(2), None),
+            "{by_overlap:?}"
+        );
+    }
+
+    #[test]
+    fn ids_that_are_not_t0_objects_are_matched_by_overlap() {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        for v in &mut view.instance.as_mut().unwrap().data {
+            if *v == 2 {
+                *v = 5;
+            }
+        }
+        let (m, rule) = detect(
+            &s,
+            &[(1, 0), (2, 1)],
+            &view,
+            &RenderSettings::default(),
+            0.5,
+            Identity::Auto,
+        )
+        .unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!((m[0].new_id, m[1].new_id), (Some(5), None), "{m:?}");
+    }
 
     #[test]
     fn rigid_fit_recovers_a_known_rotation_and_translation_from_noisy_positions() {

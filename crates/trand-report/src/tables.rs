@@ -18,10 +18,11 @@ use crate::method::Method;
 
 /// Stages of `run.json`'s `timings` shown per state, in column order.
 pub const T0_STAGES: [&str; 3] = ["preprocess_s", "optimise_s", "total_s"];
-pub const T1_STAGES: [&str; 5] = [
+pub const T1_STAGES: [&str; 6] = [
     "detection_s",
     "meshing_s",
     "simulation_s",
+    "relocalisation_s",
     "refinement_s",
     "total_s",
 ];
@@ -533,12 +534,12 @@ mod tests {
         let lines: Vec<&str> = md.lines().collect();
         assert_eq!(
             lines[0],
-            "| | sequences | detection (s) | meshing (s) | simulation (s) | refinement (s) | total (s) | Gaussians | peak RSS (MB) |"
+            "| | sequences | detection (s) | meshing (s) | simulation (s) | relocalisation (s) | refinement (s) | total (s) | Gaussians | peak RSS (MB) |"
         );
-        assert_eq!(lines[1].matches("---").count(), 9);
+        assert_eq!(lines[1].matches("---").count(), 10);
         assert_eq!(
             lines[2],
-            "| trand t1 | 1 | – | – | 2.50 | – | 4.00 | – | 812 |"
+            "| trand t1 | 1 | – | – | 2.50 | – | – | 4.00 | – | 812 |"
         );
     }
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, View, ViewCount, read_sequence_with, select_train_views};
-use trand_pipeline::update::{MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
+use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
 
 #[derive(clap::Args)]
@@ -33,9 +33,18 @@ pub struct Args {
     /// Single-image refinement: on (default) or off ("physics only").
     #[arg(long, value_parser = parse_stage)]
     pub refine: Option<Stage>,
+    /// Silhouette relocalisation after the simulation: on (default) moves an object whose silhouette
+    /// misses its instance mask to fit it; off keeps the simulated pose.
+    #[arg(long, value_parser = parse_stage)]
+    pub relocalise: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
     #[arg(long, num_args = 1..)]
     pub removed: Option<Vec<u16>>,
+    /// How objects are found in the new mask: auto (default: by id when every id of the new mask is a
+    /// t = 0 object id), ids (the mask's ids are the t = 0 object ids) or overlap (per-image ids,
+    /// matched by overlap with the rendered t = 0 objects).
+    #[arg(long, value_parser = parse_identity)]
+    pub identity: Option<Identity>,
     /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
     #[arg(long, value_parser = parse_depth)]
     pub mesh_depth: Option<MeshDepth>,
@@ -53,6 +62,15 @@ fn parse_stage(s: &str) -> Result<Stage, String> {
         "on" => Ok(Stage::On),
         "off" => Ok(Stage::Off),
         _ => Err(format!("`{s}`: expected on or off")),
+    }
+}
+
+fn parse_identity(s: &str) -> Result<Identity, String> {
+    match s {
+        "auto" => Ok(Identity::Auto),
+        "ids" => Ok(Identity::ObjectIds),
+        "overlap" => Ok(Identity::Overlap),
+        _ => Err(format!("`{s}`: expected auto, ids or overlap")),
     }
 }
 
@@ -197,6 +215,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     opts.physics = a.physics.unwrap_or(opts.physics);
     opts.refine = a.refine.unwrap_or(opts.refine);
+    opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
+    opts.identity = a.identity.unwrap_or(opts.identity);
     if a.removed.is_some() {
         opts.removed = a.removed.clone();
     }
@@ -257,7 +277,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ..Default::default()
     };
     let renders = trand_pipeline::outputs::render_views(&up.surfels, &seq.test_t1, &settings)?;
-    let total = up.detection_s + up.meshing_s + up.simulation_s + up.refinement_s;
+    let total =
+        up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
     let out_json = serde_json::json!({
         "state": "t1",
         "method": ropts.method,
@@ -270,6 +291,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "matching": up.matches,
         "removed": up.removed,
         "removed_by": if opts.removed.is_some() { "user" } else { "detection" },
+        "identity": up.identity,
+        "relocalise": opts.relocalise,
+        "relocations": up.relocations,
         "deleted_surfels": up.deleted_surfels,
         "num_particles": up.num_particles,
         "max_surfel_displacement_m": up.max_displacement_m,
@@ -280,6 +304,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "detection_s": up.detection_s,
             "meshing_s": up.meshing_s,
             "simulation_s": up.simulation_s,
+            "relocalisation_s": up.relocalisation_s,
             "refinement_s": up.refinement_s,
             "total_s": total,
             "test_render_s": t_render.elapsed().as_secs_f64(),
@@ -321,16 +346,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ),
         }
     }
+    for r in &up
+        .relocations
+        .iter()
+        .filter(|r| r.moved)
+        .collect::<Vec<_>>()
+    {
+        println!(
+            "object {} relocalised to its mask: IoU {:.2} -> {:.2}",
+            r.object_id, r.iou_before, r.iou_after
+        );
+    }
     if up.removed.is_empty() {
         println!(
             "no object was found missing: nothing deleted, physics ran on the unchanged scene"
         );
     }
     println!(
-        "updated in {total:.1} s (detection {:.1}, meshing {:.1}, simulation {:.1}, refinement {:.1}): {} surfels, {} particles -> {}",
+        "updated in {total:.1} s (detection {:.1}, meshing {:.1}, simulation {:.1}, relocalisation {:.1}, refinement {:.1}): {} surfels, {} particles -> {}",
         up.detection_s,
         up.meshing_s,
         up.simulation_s,
+        up.relocalisation_s,
         up.refinement_s,
         up.surfels.len(),
         up.num_particles,

@@ -125,10 +125,11 @@ impl Runner<'_> {
             }
             State::T1 => {
                 let t0 = layout::result_dir(self.report, &step.sequence, m, State::T0);
-                let (physics, refine) = match m.update() {
-                    Update::Full => ("on", "on"),
-                    Update::NoPhysics => ("off", "on"),
-                    Update::NoRefine => ("on", "off"),
+                // "physics only" uses the new image for detection alone: no relocalisation either.
+                let (physics, refine, relocalise) = match m.update() {
+                    Update::Full => ("on", "on", "on"),
+                    Update::NoPhysics => ("off", "on", "on"),
+                    Update::NoRefine => ("on", "off", "off"),
                 };
                 Cmd::new("update")
                     .path("--run", &t0)
@@ -136,6 +137,7 @@ impl Runner<'_> {
                     .path("--out", out)
                     .arg("--physics", physics)
                     .arg("--refine", refine)
+                    .arg("--relocalise", relocalise)
             }
         };
         let eval = Cmd::new("eval")
