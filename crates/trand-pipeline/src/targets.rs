@@ -34,8 +34,11 @@ pub struct TrainView {
     pub rgb: Vec<f32>,
     /// Empty for [`Supervision::FullImage`].
     pub mask: Vec<f32>,
-    /// `H·W·K`; empty for [`Supervision::FullImage`].
-    pub one_hot: Vec<f32>,
+    /// Object channel per pixel (the one-hot target's hot channel, 0 = background); empty for
+    /// [`Supervision::FullImage`].
+    pub labels: Vec<u8>,
+    /// Pixels per channel (`Σ t` of the Dice loss); empty for [`Supervision::FullImage`].
+    pub label_counts: Vec<f32>,
     /// Instance id per pixel (after downsampling).
     pub ids: Vec<u16>,
 }
@@ -167,15 +170,19 @@ pub fn build(
             height: h,
             rgb,
             mask: Vec::new(),
-            one_hot: Vec::new(),
+            labels: Vec::new(),
+            label_counts: Vec::new(),
             ids,
         });
     }
     let mut mask = vec![0.0f32; w * h * 3];
-    let mut one_hot = vec![0.0f32; w * h * num_objects];
+    let mut labels = vec![0u8; w * h];
+    let mut label_counts = vec![0.0f32; num_objects];
     for o in 0..w * h {
         let c = lut[ids[o] as usize];
-        one_hot[o * num_objects + c] = 1.0;
+        // Channels are below the rasterizer's 64 (channel_map checks against K).
+        labels[o] = c as u8;
+        label_counts[c] += 1.0;
         if c == 0 {
             rgb[o * 3..o * 3 + 3].copy_from_slice(&background);
             mask[o * 3..o * 3 + 3].copy_from_slice(&background);
@@ -193,7 +200,8 @@ pub fn build(
         height: h,
         rgb,
         mask,
-        one_hot,
+        labels,
+        label_counts,
         ids,
     })
 }
@@ -234,11 +242,12 @@ mod tests {
         let t =
             build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
-        assert!(t.mask.is_empty() && t.one_hot.is_empty());
+        assert!(t.mask.is_empty() && t.labels.is_empty());
         assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, 1).is_err());
         let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 1)
             .expect("id 3 is known");
-        assert_eq!(t.one_hot[2 * 15 + 1], 1.0);
+        assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
+        assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
     }
 

@@ -14,10 +14,12 @@
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
 use trand_core::Surfels;
-use trand_render::{GeometryMaps, Maps, OutputGrads, RenderSettings, render};
+use trand_render::{
+    GeometryMaps, Maps, ObjectSumGrads, OutputGrads, RenderSettings, render, render_object_sums,
+};
 use trand_train::config::TrainConfig;
 use trand_train::losses::{
-    dice::dice, geometry, object::object_aware_loss, photometric::photometric,
+    dice::dice_from_sums, geometry, object::object_aware_loss, photometric::photometric,
 };
 use trand_train::{Adam, DensifyStats, densify_and_prune, reset_opacity};
 
@@ -119,7 +121,13 @@ impl<'a> Trainer<'a> {
                 GeometryMaps::Skipped
             },
         };
-        let out = render::<f32, _>(&self.surfels, &view.camera, &settings)?;
+        // The Dice loss reads the object map only through two sums per channel: rendered against the
+        // target labels, without the K-channel map (trand_render::labels).
+        let out = if object_aware {
+            render_object_sums::<f32, _>(&self.surfels, &view.camera, &settings, &view.labels)?
+        } else {
+            render::<f32, _>(&self.surfels, &view.camera, &settings)?
+        };
         let (w, h) = (view.width, view.height);
         let il = &cfg.image_loss;
         let lam = il.lambda_dssim as f32;
@@ -140,10 +148,16 @@ impl<'a> Trainer<'a> {
             rep.mask = pm.value;
             loss += il.mask as f32 * pm.value;
             g.mask = Some(pm.grad.into_iter().map(|v| v * il.mask as f32).collect());
-            let (dv, dg) = dice(&out.objects, &view.one_hot, k);
+            let sums = out.object_sums.as_ref().expect("rendered with object sums");
+            let (dv, g_total, g_on_label) =
+                dice_from_sums(&sums.total, &sums.on_label, &view.label_counts);
             rep.dice = dv;
             loss += il.dice as f32 * dv;
-            g.objects = Some(dg.into_iter().map(|v| v * il.dice as f32).collect());
+            let scale = |v: Vec<f32>| v.into_iter().map(|x| x * il.dice as f32).collect();
+            g.object_sums = Some(ObjectSumGrads {
+                total: scale(g_total),
+                on_label: scale(g_on_label),
+            });
         }
         if geometry_on {
             let n = w * h;

@@ -19,6 +19,10 @@
 //!   trand keeps that term (the reference drops it in the filter branch), so the gradient is exact.
 //! * `(u, v) = (p_x, p_y)/p_z`, `p = k × l`, `k = x T_w − T_u`, `l = y T_w − T_v` → ∂L/∂T.
 //!
+//! Against a label map ([`crate::labels`]) the object term of `v_i` is `Σ_c π_c ∂L/∂P_c` (one constant
+//! per surfel) plus `π_ℓ ∂L/∂I_ℓ` for the pixel's label `ℓ`, and `∂L/∂π_c = W ∂L/∂P_c + W_c ∂L/∂I_c`
+//! from the pair's weight sums, so no per-channel plane is needed.
+//!
 //! Every (tile, surfel) pair writes one gradient record at its pair position; stage 5 sums each
 //! surfel's records in the fixed order of [`crate::binning::Bins::pair_pos`]. No atomics, so results are
 //! bit-identical for any number of threads.
@@ -30,6 +34,7 @@ use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{Plane, cut_row, half_columns, span_mask, tile_pixels};
 use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes};
+use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
@@ -61,6 +66,8 @@ pub struct GradMaps<'a, R> {
     pub median: Option<&'a [R]>,
     pub normal: Option<&'a [R]>,
     pub distortion: Option<&'a [R]>,
+    /// `(∂L/∂P, ∂L/∂I)` of the object sums, with the forward's labels.
+    pub object_sums: Option<(&'a [R], &'a [R])>,
 }
 
 /// Backward pass of tile `t`: writes one record per pair of the tile into `pairs`
@@ -78,6 +85,7 @@ pub fn backward_tile<R: Real>(
     background: [R; 3],
     buf: &[R],
     ibuf: &[u32],
+    labels: Option<&[u8]>,
     grads: &GradMaps<'_, R>,
     pairs: &mut [R],
 ) {
@@ -175,6 +183,17 @@ pub fn backward_tile<R: Real>(
     let mut acc_obj = [zv; crate::MAX_OBJECTS];
     let xs = half_columns::<R>(tx0);
 
+    // Object sums: per pair Σw, Σw per label, and the pair's constants β = Σ_c π_c ∂L/∂P_c and
+    // π_ℓ ∂L/∂I_ℓ per label present.
+    let sum_grads = grads.object_sums.filter(|_| lay.sums.is_some());
+    let tl = match (sum_grads, labels) {
+        (Some(_), Some(l)) => Some(TileLabels::<R>::gather(l, w_img, (tx0, ty0, tx1, ty1))),
+        _ => None,
+    };
+    let n_lab = tl.as_ref().map_or(0, |t| t.labels.len());
+    let (mut acc_w, mut acc_l) = (zv, [zv; crate::MAX_OBJECTS]);
+    let (mut beta, mut coef) = (z, [z; crate::MAX_OBJECTS]);
+
     for pos in (0..max_last).rev() {
         while next < order.len() && last[order[next] as usize] as usize > pos {
             let i = order[next] as usize;
@@ -217,6 +236,16 @@ pub fn backward_tile<R: Real>(
                 if !touched {
                     acc = [zv; rec::OBJ];
                     acc_obj[..k_obj].fill(zv);
+                    if let (Some((gp, gi)), Some(tl)) = (sum_grads, &tl) {
+                        (acc_w, beta) = (zv, z);
+                        acc_l[..n_lab].fill(zv);
+                        for (&pc, &g) in pr.iter().zip(gp) {
+                            beta += pc * g;
+                        }
+                        for (c, &l) in coef.iter_mut().zip(&tl.labels) {
+                            *c = pr[l as usize] * gi[l as usize];
+                        }
+                    }
                     touched = true;
                 }
                 let a = h.alpha;
@@ -250,6 +279,16 @@ pub fn backward_tile<R: Real>(
                         *ao += w * g;
                         v += g * pc;
                     }
+                }
+                if let Some(tl) = &tl {
+                    let mut vo = V::splat(beta);
+                    for ((a, m), &c) in acc_l[..n_lab].iter_mut().zip(&tl.masks).zip(&coef) {
+                        let m = V::load(&m[px.clone()]);
+                        vo += m * c;
+                        *a += w * m;
+                    }
+                    v += vo;
+                    acc_w += w;
                 }
                 let mut dz = w * g_dv;
                 let at_median = M::from_fn(|l| medpos[base + l] == pos_v);
@@ -315,6 +354,15 @@ pub fn backward_tile<R: Real>(
             }
             for (o, a) in out[rec::OBJ..].iter_mut().zip(&acc_obj[..k_obj]) {
                 *o = a.sum();
+            }
+            if let (Some((gp, gi)), Some(tl)) = (sum_grads, &tl) {
+                let w_sum = acc_w.sum();
+                for (o, &g) in out[rec::OBJ..].iter_mut().zip(gp) {
+                    *o = g * w_sum;
+                }
+                for (&l, a) in tl.labels.iter().zip(&acc_l) {
+                    out[rec::OBJ + l as usize] += gi[l as usize] * a.sum();
+                }
             }
         }
     }

@@ -13,7 +13,7 @@
 //! | output | value |
 //! |---|---|
 //! | colour, mask colour | `Σ w_i c_i + T_final · bg` |
-//! | object map (K ch.) | `Σ w_i p_i` (no background term) |
+//! | object map (K ch.) | `Σ w_i p_i` (no background term), or its two sums per channel against a label map ([`crate::labels`]) |
 //! | alpha | `1 − T_final` |
 //! | depth (unnormalised) | `D = Σ w_i z_i` |
 //! | median depth | `z_i` of the last blended `i` with `T > ½` (0 if none) |
@@ -29,6 +29,7 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
 use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes, row_columns};
+use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::Proj;
@@ -90,7 +91,8 @@ pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usi
     m
 }
 
-/// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`.
+/// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`;
+/// `labels` (row-major, one channel index per pixel) when the layout has object sums.
 /// Called through [`crate::simd::raster_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // c indexes planes and colour alike
 #[inline(always)]
@@ -103,6 +105,7 @@ pub fn raster_tile<R: Real>(
     cam: &CamR<R>,
     background: [R; 3],
     geometry: GeometryMaps,
+    labels: Option<&[u8]>,
     buf: &mut [R],
     ibuf: &mut [u32],
 ) {
@@ -137,6 +140,19 @@ pub fn raster_tile<R: Real>(
 
     let xs = half_columns::<R>(tx0);
 
+    // Object sums against labels: per pair Σw and Σw per label present, folded into `sums` (P, I).
+    let tl = match (lay.sums, labels) {
+        (Some(_), Some(l)) => Some(TileLabels::<R>::gather(
+            l,
+            cam.width as usize,
+            (tx0, ty0, tx1, ty1),
+        )),
+        _ => None,
+    };
+    let n_lab = tl.as_ref().map_or(0, |t| t.labels.len());
+    let mut sums = [z; 2 * crate::MAX_OBJECTS];
+    let (mut acc_w, mut acc_l) = (V::splat(z), [V::splat(z); crate::MAX_OBJECTS]);
+
     let list = bins.tile(t);
     for (pos, &j) in list.iter().enumerate() {
         if let Some(&ahead) = list.get(pos + PREFETCH_AHEAD) {
@@ -148,6 +164,7 @@ pub fn raster_tile<R: Real>(
         let span = span_mask(x0, x1);
         let pr = &probs[j as usize * k_obj..(j as usize + 1) * k_obj];
         let pos_v = pos as u32;
+        let mut touched = false;
         for ly in y0..=y1 {
             let bits = active[ly as usize] & span;
             if bits == 0 {
@@ -170,6 +187,11 @@ pub fn raster_tile<R: Real>(
                 if !h.valid.any() {
                     continue;
                 }
+                if !touched && n_lab > 0 {
+                    acc_w = V::splat(z);
+                    acc_l[..n_lab].fill(V::splat(z));
+                }
+                touched = true;
                 let t_before = V::load(&tr[px.clone()]);
                 let t_after = t_before * rsub(R::ONE, h.alpha);
                 // Stop before the surfel that would take T below 1e-4 (it is not blended).
@@ -188,6 +210,12 @@ pub fn raster_tile<R: Real>(
                 if has_obj {
                     for (plane, &pc) in obj.iter_mut().zip(pr) {
                         (w * pc).add_to(&mut plane[px.clone()]);
+                    }
+                }
+                if let Some(tl) = &tl {
+                    acc_w += w;
+                    for (a, m) in acc_l[..n_lab].iter_mut().zip(&tl.masks) {
+                        *a += w * V::load(&m[px.clone()]);
                     }
                 }
                 if geometry {
@@ -215,6 +243,15 @@ pub fn raster_tile<R: Real>(
                         last[base + l] = pos_v + 1;
                     }
                 }
+            }
+        }
+        if let (true, Some(tl)) = (touched, &tl) {
+            let w_sum = acc_w.sum();
+            for (s, &pc) in sums[..k_obj].iter_mut().zip(pr) {
+                *s += pc * w_sum;
+            }
+            for (&l, a) in tl.labels.iter().zip(&acc_l) {
+                sums[k_obj + l as usize] += pr[l as usize] * a.sum();
             }
         }
         if active.iter().all(|&m| m == 0) {
@@ -247,4 +284,7 @@ pub fn raster_tile<R: Real>(
     put(lay.t_final, &tr);
     put(lay.m1, &m1);
     put(lay.m2, &m2);
+    if let Some(sp) = lay.sums {
+        buf[sp * TILE_PIXELS..sp * TILE_PIXELS + 2 * k_obj].copy_from_slice(&sums[..2 * k_obj]);
+    }
 }

@@ -8,7 +8,9 @@
 
 use crate::constants::TILE_PIXELS;
 
-/// Channel offsets inside a tile block. Mask and object channels exist only when requested.
+/// Channel offsets inside a tile block. Mask and object channels exist only when requested; the object
+/// channels are either K planes (the map) or, against a label map, one plane of per-tile sums
+/// ([`crate::labels`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Layout {
     pub num_objects: usize,
@@ -25,6 +27,8 @@ pub struct Layout {
     pub t_final: usize,
     pub m1: usize,
     pub m2: usize,
+    /// Plane of the per-tile object sums (`P` then `I`, 2K values), when rendering against labels.
+    pub sums: Option<usize>,
     pub channels: usize,
 }
 
@@ -56,7 +60,18 @@ impl Layout {
             t_final,
             m1,
             m2,
+            sums: None,
             channels: m2 + 1,
+        }
+    }
+
+    /// The layout with object sums instead of object planes.
+    pub fn with_sums(num_objects: usize, has_mask: bool) -> Self {
+        let l = Self::new(num_objects, has_mask, false);
+        Self {
+            sums: Some(l.channels),
+            channels: l.channels + 1,
+            ..l
         }
     }
 

@@ -25,6 +25,7 @@ pub mod camera;
 pub mod constants;
 pub mod forward;
 pub mod intersect;
+pub mod labels;
 pub mod lanes;
 pub mod layout;
 pub mod params;
@@ -32,8 +33,9 @@ pub mod preprocess;
 mod render;
 pub mod simd;
 
+pub use labels::{ObjectSumGrads, ObjectSums};
 pub use params::{ParamsOf, SurfelParams};
 pub use render::{
     GeometryMaps, Gradients, MAX_OBJECTS, Maps, OutputGrads, RenderError, RenderSettings, Rendered,
-    render,
+    render, render_object_sums,
 };

@@ -7,6 +7,7 @@ use crate::backward::{GradMaps, rec, reduce_surfel};
 use crate::binning::{Bins, bin};
 use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
+use crate::labels::{ObjectSumGrads, ObjectSums};
 use crate::layout::{INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams};
 use crate::preprocess::{Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one};
@@ -85,6 +86,16 @@ pub enum RenderError {
     Objects(usize),
     #[error("near plane {0} must be finite and positive")]
     Near(f64),
+    #[error("label map has {got} entries, the image {expected} pixels")]
+    LabelsSize { got: usize, expected: usize },
+    #[error("label {label} at pixel {pixel} is not one of the {num_objects} object channels")]
+    Label {
+        label: u8,
+        pixel: usize,
+        num_objects: usize,
+    },
+    #[error("object sums need the object channels (Maps::RgbObjects or Maps::All)")]
+    SumsWithoutObjects,
 }
 
 /// Rendered maps (row-major, interleaved) plus the state the backward pass needs.
@@ -97,8 +108,10 @@ pub struct Rendered<R> {
     pub rgb: Vec<R>,
     /// `H·W·3`, empty unless requested.
     pub mask: Vec<R>,
-    /// `H·W·K`, empty unless requested.
+    /// `H·W·K`, empty unless requested (and empty when rendered as sums).
     pub objects: Vec<R>,
+    /// The object map's sums against a label map ([`render_object_sums`]).
+    pub object_sums: Option<ObjectSums<R>>,
     /// `H·W`: `1 − T_final`.
     pub alpha: Vec<R>,
     /// `H·W`: unnormalised depth `Σ w_i z_i`; see [`Rendered::expected_depth`].
@@ -129,6 +142,7 @@ struct Saved<R> {
     bins: Bins,
     blocks: Vec<R>,
     iblocks: Vec<u32>,
+    labels: Option<Vec<u8>>,
 }
 
 /// Gradients of a scalar loss with respect to the rendered maps (row-major, `None` = zero).
@@ -143,6 +157,8 @@ pub struct OutputGrads<R> {
     pub median: Option<Vec<R>>,
     pub normal: Option<Vec<R>>,
     pub distortion: Option<Vec<R>>,
+    /// Gradients of the object sums (renders from [`render_object_sums`] only).
+    pub object_sums: Option<ObjectSumGrads<R>>,
 }
 
 /// Result of the backward pass.
@@ -204,6 +220,16 @@ impl<R: Real> Rendered<R> {
         check(&grads.median, 1, "median");
         check(&grads.normal, 3, "normal");
         check(&grads.distortion, 1, "distortion");
+        if let Some(g) = &grads.object_sums {
+            assert!(
+                s.labels.is_some(),
+                "object-sum gradients need a render from render_object_sums"
+            );
+            assert!(
+                g.total.len() == self.num_objects && g.on_label.len() == self.num_objects,
+                "object-sum gradients have the wrong size"
+            );
+        }
         if s.settings.geometry == GeometryMaps::Skipped {
             assert!(
                 grads.median.is_none() && grads.distortion.is_none(),
@@ -219,6 +245,10 @@ impl<R: Real> Rendered<R> {
             median: grads.median.as_deref(),
             normal: grads.normal.as_deref(),
             distortion: grads.distortion.as_deref(),
+            object_sums: grads
+                .object_sums
+                .as_ref()
+                .map(|g| (&g.total[..], &g.on_label[..])),
         };
         let k = self.num_objects;
         let stride = rec::stride(k);
@@ -251,6 +281,7 @@ impl<R: Real> Rendered<R> {
                     &s.blocks[t * block..(t + 1) * block],
                     &s.iblocks
                         [t * INT_CHANNELS * TILE_PIXELS..(t + 1) * INT_CHANNELS * TILE_PIXELS],
+                    s.labels.as_deref(),
                     &maps,
                     chunk,
                 )
@@ -342,6 +373,45 @@ pub fn render<R: Real, P: SurfelParams<R>>(
     camera: &Camera,
     settings: &RenderSettings,
 ) -> Result<Rendered<R>, RenderError> {
+    render_impl(params, camera, settings, None)
+}
+
+/// [`render`] with the object channels reduced against `labels` (row-major, one object channel per
+/// pixel) to the two sums per channel of [`ObjectSums`] instead of the K-channel map: what the Dice loss
+/// needs, at a fraction of the map's cost ([`crate::labels`]). `settings.maps` must include the objects.
+pub fn render_object_sums<R: Real, P: SurfelParams<R>>(
+    params: &P,
+    camera: &Camera,
+    settings: &RenderSettings,
+    labels: &[u8],
+) -> Result<Rendered<R>, RenderError> {
+    if !settings.maps.objects() {
+        return Err(RenderError::SumsWithoutObjects);
+    }
+    let expected = camera.intrinsics.num_pixels();
+    if labels.len() != expected {
+        return Err(RenderError::LabelsSize {
+            got: labels.len(),
+            expected,
+        });
+    }
+    let k = params.num_objects();
+    if let Some(pixel) = labels.iter().position(|&l| l as usize >= k) {
+        return Err(RenderError::Label {
+            label: labels[pixel],
+            pixel,
+            num_objects: k,
+        });
+    }
+    render_impl(params, camera, settings, Some(labels))
+}
+
+fn render_impl<R: Real, P: SurfelParams<R>>(
+    params: &P,
+    camera: &Camera,
+    settings: &RenderSettings,
+    labels: Option<&[u8]>,
+) -> Result<Rendered<R>, RenderError> {
     camera.validate()?;
     let k = params.num_objects();
     if k == 0 || k > MAX_OBJECTS {
@@ -378,7 +448,10 @@ pub fn render<R: Real, P: SurfelParams<R>>(
     let bins = bin(&projs, cam.tiles_x(), cam.tiles_y());
 
     // Stage 3: per-tile rasterization into tile blocks.
-    let lay = Layout::new(k, settings.maps.mask(), settings.maps.objects());
+    let lay = match labels {
+        Some(_) => Layout::with_sums(k, settings.maps.mask()),
+        None => Layout::new(k, settings.maps.mask(), settings.maps.objects()),
+    };
     let block = lay.block();
     let n_tiles = bins.num_tiles();
     let mut blocks = vec![R::ZERO; n_tiles * block];
@@ -399,6 +472,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
                 &cam,
                 bg,
                 settings.geometry,
+                labels,
                 b,
                 ib,
             )
@@ -443,6 +517,19 @@ pub fn render<R: Real, P: SurfelParams<R>>(
     } else {
         Vec::new()
     };
+    let object_sums = lay.sums.map(|sp| {
+        let mut sums = vec![R::ZERO; 2 * k];
+        for b in blocks.chunks_exact(block) {
+            for (s, &v) in sums.iter_mut().zip(&b[sp * TILE_PIXELS..]) {
+                *s += v;
+            }
+        }
+        let on_label = sums.split_off(k);
+        ObjectSums {
+            total: sums,
+            on_label,
+        }
+    });
     let alpha = gather(lay.alpha, 1);
     let geometry = settings.geometry == GeometryMaps::Rendered;
     let maybe = |ch0: usize, nch: usize| {
@@ -468,6 +555,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
         rgb,
         mask,
         objects,
+        object_sums,
         alpha,
         depth,
         median,
@@ -486,6 +574,7 @@ pub fn render<R: Real, P: SurfelParams<R>>(
             bins,
             blocks,
             iblocks,
+            labels: labels.map(<[u8]>::to_vec),
         },
     })
 }

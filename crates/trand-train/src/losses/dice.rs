@@ -67,29 +67,46 @@ pub fn dice<R: Real>(pred: &[R], target: &[R], num_channels: usize) -> (R, Vec<R
             *a += b;
         }
     }
-    let inv_k = R::ONE / R::from_f64(k as f64);
-    let two = R::from_f64(2.0);
-    let mut value = R::ZERO;
-    // Per channel: coefficient of t (−2/(K·D)) and the constant (2I+1)/(K·D²).
-    let mut coef_t = vec![R::ZERO; k];
-    let mut coef_c = vec![R::ZERO; k];
-    for c in 0..k {
-        let num = two * sums[c] + R::ONE;
-        let den = sums[k + c] + sums[2 * k + c] + R::ONE;
-        value += R::ONE - num / den;
-        coef_t[c] = -two * inv_k / den;
-        coef_c[c] = inv_k * num / (den * den);
-    }
+    let (value, g_total, g_on_label) = dice_from_sums(&sums[k..2 * k], &sums[..k], &sums[2 * k..]);
     let grad = pred
         .par_iter()
         .zip(target.par_iter())
         .enumerate()
         .map(|(i, (_, &t))| {
             let c = i % k;
-            coef_t[c] * t + coef_c[c]
+            g_on_label[c] * t + g_total[c]
         })
         .collect();
-    (value * inv_k, grad)
+    (value, grad)
+}
+
+/// The Dice loss from the object map's per-channel sums (what the rasterizer's label mode renders):
+/// `total[k] = Σ p`, `on_label[k] = I_k = Σ p t`, `counts[k] = Σ t`. Returns the loss and its gradients
+/// with respect to `total` and `on_label`:
+///
+/// `∂L/∂total_k = (1/K)(2 I_k + 1)/D_k²`, `∂L/∂I_k = −(2/K)/D_k`, `D_k = Σ p + Σ t + 1`,
+///
+/// so that the per-pixel gradient of [`dice`] is `∂L/∂I_k·t + ∂L/∂total_k`.
+pub fn dice_from_sums<R: Real>(total: &[R], on_label: &[R], counts: &[R]) -> (R, Vec<R>, Vec<R>) {
+    let k = total.len();
+    assert!(k > 0, "dice: no channels");
+    assert!(
+        on_label.len() == k && counts.len() == k,
+        "dice: sums of different lengths"
+    );
+    let inv_k = R::ONE / R::from_f64(k as f64);
+    let two = R::from_f64(2.0);
+    let mut value = R::ZERO;
+    let mut g_total = vec![R::ZERO; k];
+    let mut g_on_label = vec![R::ZERO; k];
+    for c in 0..k {
+        let num = two * on_label[c] + R::ONE;
+        let den = total[c] + counts[c] + R::ONE;
+        value += R::ONE - num / den;
+        g_on_label[c] = -two * inv_k / den;
+        g_total[c] = inv_k * num / (den * den);
+    }
+    (value * inv_k, g_total, g_on_label)
 }
 
 /// One-hot target (`num_channels` channels, channel-fastest) from an instance-id map.
@@ -146,6 +163,48 @@ mod tests {
         }
         let (_, g) = dice(&p, &t, k);
         assert_grad_matches_fd(&p, &g, |p| dice(p, &t, k).0, 1e-6, 1e-9);
+    }
+
+    #[test]
+    fn dice_from_sums_equals_the_per_pixel_dice_and_its_gradient() {
+        let k = 3;
+        let n_pix = 31;
+        let p = rand_vec(7, n_pix * k, 0.0, 1.0);
+        let labels: Vec<usize> = rand_vec(8, n_pix, 0.0, k as f64)
+            .iter()
+            .map(|&l| l as usize)
+            .collect();
+        let mut t = vec![0.0; n_pix * k];
+        let (mut total, mut on, mut counts) = (vec![0.0; k], vec![0.0; k], vec![0.0; k]);
+        for (i, &l) in labels.iter().enumerate() {
+            t[i * k + l] = 1.0;
+            on[l] += p[i * k + l];
+            counts[l] += 1.0;
+            for c in 0..k {
+                total[c] += p[i * k + c];
+            }
+        }
+        let (v, g) = dice(&p, &t, k);
+        let (vs, gt, gi) = dice_from_sums(&total, &on, &counts);
+        assert!((v - vs).abs() < 1e-14);
+        for (i, &l) in labels.iter().enumerate() {
+            for c in 0..k {
+                let want = gt[c] + if c == l { gi[c] } else { 0.0 };
+                assert!((g[i * k + c] - want).abs() < 1e-15);
+            }
+        }
+        // And the sums' gradients by finite differences.
+        let mut x = total.clone();
+        x.extend_from_slice(&on);
+        let mut gx = gt.clone();
+        gx.extend_from_slice(&gi);
+        assert_grad_matches_fd(
+            &x,
+            &gx,
+            |x| dice_from_sums(&x[..k], &x[k..], &counts).0,
+            1e-6,
+            1e-9,
+        );
     }
 
     #[test]
