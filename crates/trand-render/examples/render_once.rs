@@ -1,30 +1,55 @@
-//! Renders the 30k-surfel tabletop benchmark scene once (forward, or forward+backward with `bwd`), for
-//! profilers and instruction counters: `cargo run --release --example render_once -- 30000 bwd`.
+//! Renders the tabletop benchmark scene a few times, for profilers and instruction counters:
+//! `cargo run --release --example render_once -- 30000 MODE REPS` with MODE `fwd` (all maps, forward),
+//! `bwd` (all maps, forward+backward) or `train` (what a training step renders: object sums against a
+//! label map, no geometric maps, forward+backward).
 use trand_render::bench_scene::{tabletop_camera, tabletop_scene};
-use trand_render::{Maps, OutputGrads, RenderSettings, render};
+use trand_render::{
+    GeometryMaps, Maps, ObjectSumGrads, OutputGrads, RenderSettings, render, render_object_sums,
+};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(30_000);
-    let bwd = args.get(2).is_some_and(|s| s == "bwd");
+    let mode = args.get(2).map_or("fwd", String::as_str);
     let reps: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(5);
     let s = tabletop_scene(n, 7);
     let cam = tabletop_camera();
-    let settings = RenderSettings {
+    let all = RenderSettings {
         maps: Maps::All,
         ..Default::default()
     };
+    let train = RenderSettings {
+        geometry: GeometryMaps::Skipped,
+        ..all
+    };
     let np = 640 * 480;
-    let grads = OutputGrads {
+    let mut grads = OutputGrads {
         rgb: Some(vec![1e-3f32; np * 3]),
         mask: Some(vec![1e-3; np * 3]),
-        objects: Some(vec![1e-3; np * 15]),
         ..Default::default()
     };
+    let labels: Vec<u8> = render::<f32, _>(&s, &cam, &all)
+        .expect("render")
+        .alpha
+        .iter()
+        .map(|&a| u8::from(a > 0.5))
+        .collect();
+    if mode == "train" {
+        grads.object_sums = Some(ObjectSumGrads {
+            total: vec![1e-6; 15],
+            on_label: vec![-1e-5; 15],
+        });
+    } else {
+        grads.objects = Some(vec![1e-3; np * 15]);
+    }
     let t0 = std::time::Instant::now();
     for _ in 0..reps {
-        let out = render::<f32, _>(&s, &cam, &settings).expect("render");
-        if bwd {
+        let out = match mode {
+            "train" => render_object_sums::<f32, _>(&s, &cam, &train, &labels),
+            _ => render::<f32, _>(&s, &cam, &all),
+        }
+        .expect("render");
+        if mode != "fwd" {
             std::hint::black_box(out.backward(&s, &grads));
         }
     }

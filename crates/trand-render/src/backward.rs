@@ -104,6 +104,15 @@ pub fn backward_tile<R: Real>(
     let has_mask = lay.has_mask && grads.mask.is_some();
     let has_obj = lay.has_objects && grads.objects.is_some();
     let has_dist = grads.distortion.is_some();
+    // Terms whose upstream gradient is absent are skipped (they would add exact zeros): a training step
+    // without geometric losses needs neither the normal nor any depth term.
+    let (has_nrm, has_depth, has_alpha, has_med) = (
+        grads.normal.is_some(),
+        grads.depth.is_some(),
+        grads.alpha.is_some(),
+        grads.median.is_some(),
+    );
+    let has_z = has_depth || has_med || has_dist;
     let z = R::ZERO;
 
     // Upstream gradients, gathered into channel planes.
@@ -257,14 +266,21 @@ pub fn backward_tile<R: Real>(
 
                 // v_i = Σ_q q_i·g_q + z_i g_D + g_A (+ g_w): blended quantities and their ∂/∂q_i.
                 let g_dv = V::load(&g_d[px.clone()]);
-                let mut v = h.z * g_dv + V::load(&g_a[px.clone()]);
+                let mut v = if has_depth { h.z * g_dv } else { zv };
+                if has_alpha {
+                    v += V::load(&g_a[px.clone()]);
+                }
                 for c in 0..3 {
                     let g = V::load(&g_rgb[c][px.clone()]);
                     acc[rec::RGB + c] += w * g;
                     v += g * p.rgb[c];
-                    let g = V::load(&g_nrm[c][px.clone()]);
-                    acc[rec::NORMAL + c] += w * g;
-                    v += g * p.normal[c];
+                }
+                if has_nrm {
+                    for c in 0..3 {
+                        let g = V::load(&g_nrm[c][px.clone()]);
+                        acc[rec::NORMAL + c] += w * g;
+                        v += g * p.normal[c];
+                    }
                 }
                 if has_mask {
                     for c in 0..3 {
@@ -290,9 +306,11 @@ pub fn backward_tile<R: Real>(
                     v += vo;
                     acc_w += w;
                 }
-                let mut dz = w * g_dv;
-                let at_median = M::from_fn(|l| medpos[base + l] == pos_v);
-                dz += select(at_median & h.valid, V::load(&g_med[px.clone()]), zv);
+                let mut dz = if has_depth { w * g_dv } else { zv };
+                if has_med {
+                    let at_median = M::from_fn(|l| medpos[base + l] == pos_v);
+                    dz += select(at_median & h.valid, V::load(&g_med[px.clone()]), zv);
+                }
                 if has_dist {
                     let (m, dm) = ndc_depth_lanes(h.z);
                     let a_f = rsub(R::ONE, V::load(&t_final[px.clone()]));
@@ -315,9 +333,18 @@ pub fn backward_tile<R: Real>(
                 acc[rec::OPACITY] += select(h.clamped, zv, h.g * d_alpha);
                 let d_g = select(h.clamped, zv, d_alpha * p.opacity);
                 let d_rho = h.g * d_g * R::from_f64(-0.5);
-                let (dzu, dzv) = (dz * p.t_w[0], dz * p.t_w[1]);
-                let gu = select(h.object_space, h.u * two * d_rho + dzu, dzu);
-                let gv = select(h.object_space, h.v * two * d_rho + dzv, dzv);
+                let (gu, gv) = if has_z {
+                    let (dzu, dzv) = (dz * p.t_w[0], dz * p.t_w[1]);
+                    (
+                        select(h.object_space, h.u * two * d_rho + dzu, dzu),
+                        select(h.object_space, h.v * two * d_rho + dzv, dzv),
+                    )
+                } else {
+                    (
+                        select(h.object_space, h.u * two * d_rho, zv),
+                        select(h.object_space, h.v * two * d_rho, zv),
+                    )
+                };
                 let filter = h.valid & !h.object_space;
                 acc[rec::CENTER] += select(filter, rsub(p.center[0], xr) * filt2 * d_rho, zv);
                 acc[rec::CENTER + 1] += select(filter, d_rho * (filt2 * (p.center[1] - yr)), zv);
@@ -343,7 +370,8 @@ pub fn backward_tile<R: Real>(
                 for c in 0..3 {
                     acc[rec::T + c] -= gk[c];
                     acc[rec::T + 3 + c] -= gl[c];
-                    acc[rec::T + 6 + c] += xr * gk[c] + gl[c] * yr + dz * uv1[c];
+                    let t = xr * gk[c] + gl[c] * yr;
+                    acc[rec::T + 6 + c] += if has_z { t + dz * uv1[c] } else { t };
                 }
             }
         }
@@ -352,8 +380,10 @@ pub fn backward_tile<R: Real>(
             for (o, a) in out[..rec::OBJ].iter_mut().zip(&acc) {
                 *o = a.sum();
             }
-            for (o, a) in out[rec::OBJ..].iter_mut().zip(&acc_obj[..k_obj]) {
-                *o = a.sum();
+            if has_obj {
+                for (o, a) in out[rec::OBJ..].iter_mut().zip(&acc_obj[..k_obj]) {
+                    *o = a.sum();
+                }
             }
             if let (Some((gp, gi)), Some(tl)) = (sum_grads, &tl) {
                 let w_sum = acc_w.sum();

@@ -238,10 +238,10 @@ pub fn raster_tile<R: Real>(
                     }
                 }
                 select(blend, t_after, t_before).store(&mut tr[px.clone()]);
+                // last = pos + 1 where blended: list positions only grow, so a branch-free max.
                 for l in 0..LANES {
-                    if blend.lane(l) {
-                        last[base + l] = pos_v + 1;
-                    }
+                    let hit = u32::from(blend.lane(l));
+                    last[base + l] = last[base + l].max((pos_v + 1) * hit);
                 }
             }
         }

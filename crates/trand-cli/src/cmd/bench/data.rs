@@ -38,7 +38,10 @@ pub fn folder_entries(paths: &[PathBuf]) -> anyhow::Result<Vec<SequenceEntry>> {
             anyhow::bail!("--data {}: no such folder", p.display());
         }
         trand_io::detect_format(p).with_context(|| format!("--data {}", p.display()))?;
-        let abs = std::path::absolute(p).with_context(|| format!("--data {}", p.display()))?;
+        // Canonical, so that `../shared/x` and `/work/shared/x` name the same sequence on a resume.
+        let abs = p
+            .canonicalize()
+            .with_context(|| format!("--data {}", p.display()))?;
         let name = abs
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
