@@ -32,7 +32,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
-use crate::forward::{Plane, cut_row, half_columns, span_mask, tile_pixels};
+use crate::forward::{Plane, half_columns, tile_pixels};
 use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
@@ -70,7 +70,8 @@ pub struct GradMaps<'a, R> {
     pub object_sums: Option<(&'a [R], &'a [R])>,
 }
 
-/// Backward pass of tile `t`: writes one record per pair of the tile into `pairs`
+/// Backward pass of tile `t` (`rows`: the forward's per-entry row masks, see
+/// [`crate::forward::raster_tile`]): writes one record per pair of the tile into `pairs`
 /// (`(tile_start[t+1] − tile_start[t]) × stride` values, zero-initialised). Called through
 /// [`crate::simd::backward_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments)]
@@ -85,6 +86,7 @@ pub fn backward_tile<R: Real>(
     background: [R; 3],
     buf: &[R],
     ibuf: &[u32],
+    rows: &[u16],
     labels: Option<&[u8]>,
     grads: &GradMaps<'_, R>,
     pairs: &mut [R],
@@ -215,21 +217,17 @@ pub fn backward_tile<R: Real>(
         let j = list[pos] as usize;
         let p = &projs[j];
         let pr = &probs[j * k_obj..(j + 1) * k_obj];
-        let (x0, y0) = (p.bbox[0].max(tx0) - tx0, p.bbox[1].max(ty0) - ty0);
-        let (x1, y1) = (p.bbox[2].min(tx1) - tx0, p.bbox[3].min(ty1) - ty0);
-        let span = span_mask(x0, x1);
+        let (y0, y1) = (p.bbox[1].max(ty0) - ty0, p.bbox[3].min(ty1) - ty0);
         let pos_v = pos as u32;
         let mut touched = false;
+        let row_bits = &rows[pos * TILE as usize..(pos + 1) * TILE as usize];
         for ly in y0..=y1 {
-            let bits = active[ly as usize] & span;
+            // The forward's pixels of this row (box, row cut, still blending) that are active here.
+            let bits = active[ly as usize] & row_bits[ly as usize];
             if bits == 0 {
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let bits = cut_row(p, yr, tx0, x0, x1, bits);
-            if bits == 0 {
-                continue;
-            }
             let row = Row::new(p, yr);
             for (half, &xr) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;

@@ -92,7 +92,10 @@ pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usi
 }
 
 /// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`;
-/// `labels` (row-major, one channel index per pixel) when the layout has object sums.
+/// `labels` (row-major, one channel index per pixel) when the layout has object sums. `rows` (16 per
+/// list entry, zero-initialised) receives, for each surfel and tile row, the pixels it was evaluated on
+/// (still blending, inside its box, inside its row cut): the backward pass, whose pixels are a subset
+/// of those, reads them instead of solving the row cut again.
 /// Called through [`crate::simd::raster_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // c indexes planes and colour alike
 #[inline(always)]
@@ -108,6 +111,7 @@ pub fn raster_tile<R: Real>(
     labels: Option<&[u8]>,
     buf: &mut [R],
     ibuf: &mut [u32],
+    rows: &mut [u16],
 ) {
     let geometry = geometry == GeometryMaps::Rendered;
     let (tx0, ty0, tx1, ty1) = tile_pixels(t, bins.tiles_x, cam.width, cam.height);
@@ -175,6 +179,7 @@ pub fn raster_tile<R: Real>(
             if bits == 0 {
                 continue;
             }
+            rows[pos * TILE as usize + ly as usize] = bits;
             let row = Row::new(p, yr);
             for (half, &xh) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;

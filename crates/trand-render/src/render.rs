@@ -142,6 +142,8 @@ struct Saved<R> {
     bins: Bins,
     blocks: Vec<R>,
     iblocks: Vec<u32>,
+    /// Per list entry (pair), the forward's evaluated pixels of each of the 16 tile rows.
+    rows: Vec<u16>,
     labels: Option<Vec<u8>>,
 }
 
@@ -256,15 +258,9 @@ impl<R: Real> Rendered<R> {
 
         // Stage 4: per-tile backward into pair records.
         let mut pairs = vec![R::ZERO; s.bins.num_pairs() * stride];
-        let mut chunks = Vec::with_capacity(s.bins.num_tiles());
-        let mut rest: &mut [R] = &mut pairs;
-        for t in 0..s.bins.num_tiles() {
-            let len = (s.bins.tile_start[t + 1] - s.bins.tile_start[t]) as usize * stride;
-            let (a, b) = rest.split_at_mut(len);
-            chunks.push(a);
-            rest = b;
-        }
+        let chunks = split_by_tile(&mut pairs, &s.bins, stride);
         let block = s.lay.block();
+        let tile_rows = TILE as usize;
         chunks
             .into_par_iter()
             .enumerate()
@@ -281,6 +277,8 @@ impl<R: Real> Rendered<R> {
                     &s.blocks[t * block..(t + 1) * block],
                     &s.iblocks
                         [t * INT_CHANNELS * TILE_PIXELS..(t + 1) * INT_CHANNELS * TILE_PIXELS],
+                    &s.rows[s.bins.tile_start[t] as usize * tile_rows
+                        ..s.bins.tile_start[t + 1] as usize * tile_rows],
                     s.labels.as_deref(),
                     &maps,
                     chunk,
@@ -362,6 +360,19 @@ impl<R: Real> OutputGrads<R> {
             }
         }
     }
+}
+
+/// Splits a pair-indexed buffer (`per_pair` values per pair) into one slice per tile.
+fn split_by_tile<'a, T>(buf: &'a mut [T], bins: &Bins, per_pair: usize) -> Vec<&'a mut [T]> {
+    let mut chunks = Vec::with_capacity(bins.num_tiles());
+    let mut rest = buf;
+    for t in 0..bins.num_tiles() {
+        let len = (bins.tile_start[t + 1] - bins.tile_start[t]) as usize * per_pair;
+        let (a, b) = rest.split_at_mut(len);
+        chunks.push(a);
+        rest = b;
+    }
+    chunks
 }
 
 /// Renders surfels from a camera (stages 1–3: preprocess, binning, tile rasterization).
@@ -456,13 +467,16 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     let n_tiles = bins.num_tiles();
     let mut blocks = vec![R::ZERO; n_tiles * block];
     let mut iblocks = vec![0u32; n_tiles * INT_CHANNELS * TILE_PIXELS];
+    let mut rows = vec![0u16; bins.num_pairs() * TILE as usize];
+    let row_chunks = split_by_tile(&mut rows, &bins, TILE as usize);
     let bg = settings.background.map(R::from_f32);
     blocks
         .par_chunks_mut(block)
         .zip(iblocks.par_chunks_mut(INT_CHANNELS * TILE_PIXELS))
+        .zip(row_chunks)
         .enumerate()
         .with_min_len(4)
-        .for_each(|(t, (b, ib))| {
+        .for_each(|(t, ((b, ib), rw))| {
             raster_tile(
                 t,
                 &bins,
@@ -475,6 +489,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
                 labels,
                 b,
                 ib,
+                rw,
             )
         });
 
@@ -574,6 +589,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             bins,
             blocks,
             iblocks,
+            rows,
             labels: labels.map(<[u8]>::to_vec),
         },
     })

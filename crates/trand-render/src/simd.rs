@@ -94,12 +94,12 @@ dispatch!(
     /// Stage 3 for tile `t`: see [`crate::forward::raster_tile`].
     raster_tile, raster_tile_avx2, crate::forward::raster_tile,
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
-     geometry: GeometryMaps, labels: Option<&[u8]>, buf: &mut [R], ibuf: &mut [u32])
+     geometry: GeometryMaps, labels: Option<&[u8]>, buf: &mut [R], ibuf: &mut [u32], rows: &mut [u16])
 );
 
 dispatch!(
     /// Stage 4 for tile `t`: see [`crate::backward::backward_tile`].
     backward_tile, backward_tile_avx2, crate::backward::backward_tile,
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
-     buf: &[R], ibuf: &[u32], labels: Option<&[u8]>, grads: &GradMaps<'_, R>, pairs: &mut [R])
+     buf: &[R], ibuf: &[u32], rows: &[u16], labels: Option<&[u8]>, grads: &GradMaps<'_, R>, pairs: &mut [R])
 );
