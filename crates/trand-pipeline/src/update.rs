@@ -16,9 +16,9 @@
 //!    virtual views plus one from below the table, TSDF fusion, surface nets, vertices labelled by the
 //!    nearest object surfel.
 //! 4. **Particles**: object surfel centres plus mesh vertices (optional interior fill).
-//! 5. **MLS-MPM**, all objects in one solver; 6. each surfel moves with its particle (optionally also
+//! 5. **MLS-MPM**, all objects in one solver; each surfel moves with its particle (optionally also
 //!    rotating by the particle's polar rotation).
-//! 6b. **Relocalisation** (trand's addition, [`crate::relocalise`]): an object whose silhouette now
+//! 6. **Relocalisation** (trand's addition, [`crate::relocalise`]): an object whose silhouette now
 //!    misses its instance mask in the new image is moved rigidly to fit it.
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
 //!    object lr 0.1, densification with the t = 0 scene extent).
@@ -377,7 +377,7 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
     cams
 }
 
-/// Steps 3–6: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
+/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
 /// count, the largest surfel displacement and the meshing and simulation times.
 pub fn simulate(
     surfels: &mut Surfels,
