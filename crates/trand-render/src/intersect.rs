@@ -60,27 +60,24 @@ impl<R: Real> Row<R> {
 /// `α ≥ 1/255` ([`crate::preprocess::RowCut`]); `None` when no column can. Outside it every pixel fails
 /// the alpha gate, so the kernels skip those lanes: the rectangular evaluation box of an inclined
 /// ellipse is mostly empty (on trained scenes two thirds of its pixels), and the cut changes no result.
-/// The ellipse row `q00 x² + 2(q01 y + q02) x + (q11 y² + 2 q12 y + q22) ≤ 0` is solved in f64 and
-/// widened by one pixel plus 1 % of its width, so the kernel's f32 rounding can never put a passing
-/// pixel outside it (tested against the kernel itself).
+/// The chord is evaluated in f32 in the ellipse's centred frame and widened by one pixel plus 1 % of
+/// its width, so rounding can never put a passing pixel outside it (tested against the kernel itself).
 #[inline(always)]
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
 pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     let cut = &p.cut;
-    let y = y.to_f64();
-    let Some(q) = cut.conic else {
+    let y = y.to_f64() as f32;
+    let Some([xc, m, y0, a, d]) = cut.ellipse else {
         return Some((i32::MIN, i32::MAX));
     };
-    let b = q[1] * y + q[2];
-    let c = (q[3] * y + 2.0 * q[4]) * y + q[5];
-    let disc = b * b - q[0] * c;
-    let ellipse = (disc >= 0.0).then(|| {
-        let r = disc.sqrt();
-        ((-b - r) / q[0], (-b + r) / q[0])
+    let dy = y - y0;
+    let r2 = a * dy * dy + d;
+    let ellipse = (r2 >= 0.0).then(|| {
+        let (h, xm) = (r2.sqrt(), xc - m * dy);
+        (xm - h, xm + h)
     });
-    let dy = y - cut.center[1];
     let rf = cut.filter_radius;
-    let disc = (dy.abs() <= rf).then(|| (cut.center[0] - rf, cut.center[0] + rf));
+    let disc = ((y - cut.center[1]).abs() <= rf).then(|| (cut.center[0] - rf, cut.center[0] + rf));
     let (lo, hi) = match (ellipse, disc) {
         (None, None) => return None,
         (Some(e), None) => e,
@@ -92,10 +89,8 @@ pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     if !(lo <= hi) {
         return Some((i32::MIN, i32::MAX));
     }
-    Some((
-        lo.max(i32::MIN as f64) as i32,
-        hi.min(i32::MAX as f64) as i32,
-    ))
+    // Saturating casts: far outside the image either way.
+    Some((lo as i32, hi as i32))
 }
 
 /// The hit of pixel `(x, row.y)` with surfel `p`, if it passes the depth and alpha gates.

@@ -67,16 +67,24 @@ pub struct Proj<R> {
 /// * Object-space ellipse `u² + v² ≤ c`: with `h = T·(u, v, 1) = z·(x, y, 1)`, it is the image conic
 ///   `(x, y, 1) Q (x, y, 1)ᵀ ≤ 0`, `Q ∝ T⁻ᵀ diag(1, 1, −c) T⁻¹`. Using `adj T` for `T⁻¹` (a positive
 ///   factor `det²` apart), `Q_ij = c_i·c_j` weighted by `(1, 1, −c)`, with `c_0 = T_v × T_w`,
-///   `c_1 = T_w × T_u`, `c_2 = T_u × T_v` the columns of `adj T`. Stored as
-///   `(q00, q01, q02, q11, q12, q22)`; `None` when `q00 ≤ 0` (the conic is open on every row) or `T`
-///   is singular: no cut, the whole box is evaluated.
+///   `c_1 = T_w × T_u`, `c_2 = T_u × T_v` the columns of `adj T`. On row `y` the conic's chord is
+///   `x = −(q01 y + q02)/q00 ± √((q01 y + q02)² − q00 (q11 y² + 2 q12 y + q22))/q00`; in the frame
+///   centred on the ellipse (centre `(x_c, y_0)`, `dy = y − y_0`) that is
+///   `x = x_c − m·dy ± √(a·dy² + d)`: with `disc(y)/q00² = a y² + 2 b y + c'`, `a = (q01² − q00 q11)/q00²`
+///   (< 0 for an ellipse), `b = (q01 q02 − q00 q12)/q00²`, `c' = (q02² − q00 q22)/q00²`, it is
+///   `y_0 = −b/a`, `d = c' − b²/a`, `m = q01/q00`, `x_c = −(q01 y_0 + q02)/q00`; all computed here in
+///   f64 and stored in f32. The centred form has no cancellation, so the kernels evaluate it in f32
+///   without divisions.
+///   `None` when the conic is not an ellipse (`q00 ≤ 0` or `a ≥ 0`: nearly edge-on surfels whose
+///   region is open) or `T` is singular: no cut, the whole box is evaluated.
 /// * Filter disc `2|c − x|² ≤ c`: radius `√(c/2)` around the filter centre (rows within it keep
 ///   the disc's bounding columns).
 #[derive(Clone, Copy, Debug)]
 pub struct RowCut {
-    pub conic: Option<[f64; 6]>,
-    pub center: [f64; 2],
-    pub filter_radius: f64,
+    /// `(x_c, m, y_0, a, d)` of the chord formula above.
+    pub ellipse: Option<[f32; 5]>,
+    pub center: [f32; 2],
+    pub filter_radius: f32,
 }
 
 impl RowCut {
@@ -95,12 +103,25 @@ impl RowCut {
         let q = |i: usize, j: usize| {
             cols[i][0] * cols[j][0] + cols[i][1] * cols[j][1] - c * cols[i][2] * cols[j][2]
         };
-        let conic = [q(0, 0), q(0, 1), q(0, 2), q(1, 1), q(1, 2), q(2, 2)];
-        let usable = det != 0.0 && conic[0] > 0.0 && conic.iter().all(|v| v.is_finite());
+        let [q00, q01, q02, q11, q12, q22] = [q(0, 0), q(0, 1), q(0, 2), q(1, 1), q(1, 2), q(2, 2)];
+        // disc(y)/q00² = A y² + 2 B y + C = a (y − y0)² + d.
+        let inv = 1.0 / (q00 * q00);
+        let a = (q01 * q01 - q00 * q11) * inv;
+        let b = (q01 * q02 - q00 * q12) * inv;
+        let cc = (q02 * q02 - q00 * q22) * inv;
+        let y0 = -b / a;
+        let d = cc - b * b / a;
+        let m = q01 / q00;
+        let xc = -(q01 * y0 + q02) / q00;
+        let ellipse = [xc, m, y0, a, d];
+        let usable = det != 0.0
+            && q00 > 0.0
+            && a < 0.0
+            && ellipse.iter().all(|v| v.is_finite() && v.abs() < 1e12);
         Self {
-            conic: usable.then_some(conic),
-            center: [center[0].to_f64(), center[1].to_f64()],
-            filter_radius: (c.max(0.0) / FILTER_INV_SQUARE).sqrt(),
+            ellipse: usable.then(|| ellipse.map(|v| v as f32)),
+            center: [center[0].to_f64() as f32, center[1].to_f64() as f32],
+            filter_radius: (c.max(0.0) / FILTER_INV_SQUARE).sqrt() as f32,
         }
     }
 }
