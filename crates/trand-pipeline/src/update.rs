@@ -257,12 +257,23 @@ pub fn detect(
         .iter()
         .map(|r| new_masks.iter().map(|m| iou(r, m)).collect())
         .collect();
-    let identity = match identity {
-        Identity::Auto if new_ids.iter().all(|i| channels.iter().any(|c| c.0 == *i)) => {
-            Identity::ObjectIds
+    let stranger = new_ids
+        .iter()
+        .copied()
+        .find(|i| !channels.iter().any(|c| c.0 == *i));
+    let identity = match (identity, stranger) {
+        (Identity::Auto, None) => Identity::ObjectIds,
+        (Identity::Auto, Some(_)) => Identity::Overlap,
+        (Identity::ObjectIds, Some(id)) => {
+            return Err(PipelineError::View {
+                view: view.name.clone(),
+                what: format!(
+                    "instance id {id} of the new mask is not a t=0 object (objects: {:?}); with per-image ids use --identity overlap",
+                    channels.iter().map(|c| c.0).collect::<Vec<_>>()
+                ),
+            });
         }
-        Identity::Auto => Identity::Overlap,
-        other => other,
+        (other, _) => other,
     };
     if identity == Identity::ObjectIds {
         let matches = channels
@@ -782,6 +793,30 @@ mod tests {
             (by_overlap[0].new_id, by_overlap[1].new_id),
             (Some(2), None),
             "{by_overlap:?}"
+        );
+    }
+
+    #[test]
+    fn forcing_object_ids_on_a_mask_with_unknown_ids_is_an_error_naming_the_id() {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        for v in &mut view.instance.as_mut().unwrap().data {
+            if *v == 2 {
+                *v = 5;
+            }
+        }
+        let err = detect(
+            &s,
+            &[(1, 0), (2, 1)],
+            &view,
+            &RenderSettings::default(),
+            0.5,
+            Identity::ObjectIds,
+        )
+        .unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("instance id 5") && msg.contains("--identity overlap"),
+            "{msg}"
         );
     }
 
