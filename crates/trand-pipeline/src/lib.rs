@@ -10,9 +10,11 @@
 //!   refinement.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
+pub mod detect;
 pub mod outputs;
 pub mod reconstruct;
 pub mod relocalise;
+pub mod simulate;
 pub mod targets;
 #[cfg(test)]
 mod test_scene;

@@ -1,0 +1,284 @@
+//! Step 1 of the scene update: which t = 0 objects are in the new image, and which were removed.
+//!
+//! Two rules ([`Identity`]). When the new mask's instance ids are t = 0 object ids (the contract the
+//! t = 0 views already meet: one id per object across all views, which the authors get by propagating
+//! SAM2 masks from frame to frame), a t = 0 object missing from the new mask was removed: the authors'
+//! rule with their off-by-count bug fixed (notes §5.1). For per-image ids, notes §10 row 3: the t = 0
+//! object map is rendered from the new view and the new mask's instances are assigned to the rendered
+//! objects with the Hungarian method on the cost `1 − IoU + w·(centroid distance / image diagonal)`;
+//! objects left without an instance were removed. Overlap alone cannot tell which object went when one
+//! stood on another and fell off it after the removal (the fallen object overlaps the removed one's
+//! old place better than its own), which is why ids win when the mask has them.
+
+use trand_core::Surfels;
+use trand_eval::{hungarian, iou};
+use trand_io::View;
+use trand_render::{Maps, RenderSettings, render};
+
+use crate::{PipelineError, Result};
+
+/// How the t = 0 objects are found among the new mask's instances.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Identity {
+    /// `ObjectIds` when every instance id of the new mask is a t = 0 object id, else `Overlap`.
+    Auto,
+    /// The new mask's ids are the t = 0 object ids (a tracker carried them over; BOP masks are named
+    /// by object id): an object whose id is absent was removed.
+    ObjectIds,
+    /// The ids are per image: match by overlap of the rendered t = 0 objects (IoU + centroid, Hungarian).
+    Overlap,
+}
+
+/// One t = 0 object and what it matched in the new image.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Match {
+    pub object_id: u16,
+    pub channel: usize,
+    /// Instance id in the new mask, if matched.
+    pub new_id: Option<u16>,
+    pub iou: f64,
+}
+
+/// Step 1: finds each t = 0 object among the new instances (by id or by overlap, see [`Identity`]);
+/// returns the matches and the rule used (`Auto` resolved). The IoU of every match is reported.
+pub fn detect(
+    surfels: &Surfels,
+    channels: &[(u16, usize)],
+    view: &View,
+    settings: &RenderSettings,
+    centroid_weight: f64,
+    identity: Identity,
+) -> Result<(Vec<Match>, Identity)> {
+    let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View {
+        view: view.name.clone(),
+        what: "no instance mask".into(),
+    })?;
+    let out = render::<f32, _>(
+        surfels,
+        &view.camera,
+        &RenderSettings {
+            maps: Maps::RgbObjects,
+            ..*settings
+        },
+    )?;
+    if (out.width, out.height) != (inst.width, inst.height) {
+        return Err(PipelineError::View {
+            view: view.name.clone(),
+            what: format!(
+                "mask is {}x{} but the camera renders {}x{}",
+                inst.width, inst.height, out.width, out.height
+            ),
+        });
+    }
+    let k = out.num_objects;
+    let n = out.alpha.len();
+    let rendered: Vec<Vec<bool>> = channels
+        .iter()
+        .map(|&(_, c)| {
+            (0..n)
+                .map(|p| {
+                    out.objects[p * k + c] > 0.5 * out.alpha[p].max(1e-6) && out.alpha[p] > 0.3
+                })
+                .collect()
+        })
+        .collect();
+    let new_ids: Vec<u16> = inst.ids().into_iter().filter(|&i| i != 0).collect();
+    let new_masks: Vec<Vec<bool>> = new_ids.iter().map(|&i| inst.mask(i)).collect();
+    let ious: Vec<Vec<f64>> = rendered
+        .iter()
+        .map(|r| new_masks.iter().map(|m| iou(r, m)).collect())
+        .collect();
+    let stranger = new_ids
+        .iter()
+        .copied()
+        .find(|i| !channels.iter().any(|c| c.0 == *i));
+    let identity = match (identity, stranger) {
+        (Identity::Auto, None) => Identity::ObjectIds,
+        (Identity::Auto, Some(_)) => Identity::Overlap,
+        (Identity::ObjectIds, Some(id)) => {
+            return Err(PipelineError::View {
+                view: view.name.clone(),
+                what: format!(
+                    "instance id {id} of the new mask is not a t=0 object (objects: {:?}); with per-image ids use --identity overlap",
+                    channels.iter().map(|c| c.0).collect::<Vec<_>>()
+                ),
+            });
+        }
+        (other, _) => other,
+    };
+    if identity == Identity::ObjectIds {
+        let matches = channels
+            .iter()
+            .enumerate()
+            .map(
+                |(r, &(object_id, channel))| match new_ids.iter().position(|&i| i == object_id) {
+                    Some(c) => Match {
+                        object_id,
+                        channel,
+                        new_id: Some(object_id),
+                        iou: ious[r][c],
+                    },
+                    None => Match {
+                        object_id,
+                        channel,
+                        new_id: None,
+                        iou: ious[r].iter().copied().fold(0.0, f64::max),
+                    },
+                },
+            )
+            .collect();
+        return Ok((matches, identity));
+    }
+    let w = inst.width as usize;
+    let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
+    let centroid = |m: &[bool]| {
+        let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+        for (p, _) in m.iter().enumerate().filter(|(_, b)| **b) {
+            sx += (p % w) as f64;
+            sy += (p / w) as f64;
+            n += 1;
+        }
+        (n > 0).then(|| (sx / n as f64, sy / n as f64))
+    };
+    let rc: Vec<_> = rendered.iter().map(|m| centroid(m)).collect();
+    let nc: Vec<_> = new_masks.iter().map(|m| centroid(m)).collect();
+    let cost: Vec<Vec<f64>> = ious
+        .iter()
+        .zip(&rc)
+        .map(|(row, a)| {
+            row.iter()
+                .zip(&nc)
+                .map(|(v, b)| match (a, b) {
+                    (Some(a), Some(b)) => {
+                        1.0 - v + centroid_weight * ((a.0 - b.0).hypot(a.1 - b.1) / diag)
+                    }
+                    // Not visible from the new view: the worst possible match.
+                    _ => 2.0 + centroid_weight,
+                })
+                .collect()
+        })
+        .collect();
+    let assign = if new_ids.is_empty() {
+        vec![None; channels.len()]
+    } else {
+        hungarian(&cost)
+    };
+    let matches = channels
+        .iter()
+        .enumerate()
+        .map(|(r, &(object_id, channel))| match assign[r] {
+            Some(c) => Match {
+                object_id,
+                channel,
+                new_id: Some(new_ids[c]),
+                iou: ious[r][c],
+            },
+            None => Match {
+                object_id,
+                channel,
+                new_id: None,
+                iou: ious[r].iter().copied().fold(0.0, f64::max),
+            },
+        })
+        .collect();
+    Ok((matches, identity))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_scene::{camera, cylinder};
+
+    /// Object 1 (channel 0) stood at A, object 2 (channel 1) at B. In the new image object 1 is gone and
+    /// object 2 lies where object 1 stood (it stood on it and fell), its mask carrying id 2.
+    fn fell_into_the_removed_ones_place() -> (Surfels, View) {
+        let mut s = cylinder(0.0, 0.0, 0);
+        s.append(&cylinder(0.12, 0.04, 1));
+        let one = cylinder(0.0, 0.0, 0);
+        let out = render::<f32, _>(&one, &camera(), &RenderSettings::default()).unwrap();
+        let data: Vec<u16> = out
+            .alpha
+            .iter()
+            .map(|&a| if a > 0.5 { 2 } else { 0 })
+            .collect();
+        let inst = trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap();
+        let view = View {
+            name: "new".into(),
+            frame: 0,
+            camera: camera(),
+            rgb: None,
+            instance: Some(inst),
+            depth: None,
+        };
+        (s, view)
+    }
+
+    #[test]
+    fn object_ids_tell_which_object_went_where_overlap_cannot() {
+        let (s, view) = fell_into_the_removed_ones_place();
+        let channels = [(1, 0), (2, 1)];
+        let settings = RenderSettings::default();
+        let (by_id, rule) = detect(&s, &channels, &view, &settings, 0.5, Identity::Auto).unwrap();
+        assert_eq!(rule, Identity::ObjectIds);
+        assert_eq!(
+            (by_id[0].new_id, by_id[1].new_id),
+            (None, Some(2)),
+            "{by_id:?}"
+        );
+        // Overlap alone takes the fallen object for the one that stood there.
+        let (by_overlap, rule) =
+            detect(&s, &channels, &view, &settings, 0.5, Identity::Overlap).unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!(
+            (by_overlap[0].new_id, by_overlap[1].new_id),
+            (Some(2), None),
+            "{by_overlap:?}"
+        );
+    }
+
+    #[test]
+    fn forcing_object_ids_on_a_mask_with_unknown_ids_is_an_error_naming_the_id() {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        for v in &mut view.instance.as_mut().unwrap().data {
+            if *v == 2 {
+                *v = 5;
+            }
+        }
+        let err = detect(
+            &s,
+            &[(1, 0), (2, 1)],
+            &view,
+            &RenderSettings::default(),
+            0.5,
+            Identity::ObjectIds,
+        )
+        .unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            msg.contains("instance id 5") && msg.contains("--identity overlap"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn ids_that_are_not_t0_objects_are_matched_by_overlap() {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        for v in &mut view.instance.as_mut().unwrap().data {
+            if *v == 2 {
+                *v = 5;
+            }
+        }
+        let (m, rule) = detect(
+            &s,
+            &[(1, 0), (2, 1)],
+            &view,
+            &RenderSettings::default(),
+            0.5,
+            Identity::Auto,
+        )
+        .unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!((m[0].new_id, m[1].new_id), (Some(5), None), "{m:?}");
+    }
+}
