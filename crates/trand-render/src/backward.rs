@@ -66,8 +66,9 @@ pub struct GradMaps<'a, R> {
     pub median: Option<&'a [R]>,
     pub normal: Option<&'a [R]>,
     pub distortion: Option<&'a [R]>,
-    /// `(∂L/∂P, ∂L/∂I)` of the object sums, with the forward's labels.
-    pub object_sums: Option<(&'a [R], &'a [R])>,
+    /// `(∂L/∂P, ∂L/∂I, β)` of the object sums, with the forward's labels; `β_j = Σ_c π_{j,c} ∂L/∂P_c`
+    /// per visible surfel (computed once per surfel rather than once per pair).
+    pub object_sums: Option<(&'a [R], &'a [R], &'a [R])>,
 }
 
 /// Backward pass of tile `t` (`rows`: the forward's per-entry row masks, see
@@ -243,12 +244,9 @@ pub fn backward_tile<R: Real>(
                 if !touched {
                     acc = [zv; rec::OBJ];
                     acc_obj[..k_obj].fill(zv);
-                    if let (Some((gp, gi)), Some(tl)) = (sum_grads, &tl) {
-                        (acc_w, beta) = (zv, z);
+                    if let (Some((_, gi, betas)), Some(tl)) = (sum_grads, &tl) {
+                        (acc_w, beta) = (zv, betas[j]);
                         acc_l[..n_lab].fill(zv);
-                        for (&pc, &g) in pr.iter().zip(gp) {
-                            beta += pc * g;
-                        }
                         for (c, &l) in coef.iter_mut().zip(&tl.labels) {
                             *c = pr[l as usize] * gi[l as usize];
                         }
@@ -383,7 +381,7 @@ pub fn backward_tile<R: Real>(
                     *o = a.sum();
                 }
             }
-            if let (Some((gp, gi)), Some(tl)) = (sum_grads, &tl) {
+            if let (Some((gp, gi, _)), Some(tl)) = (sum_grads, &tl) {
                 let w_sum = acc_w.sum();
                 for (o, &g) in out[rec::OBJ..].iter_mut().zip(gp) {
                     *o = g * w_sum;

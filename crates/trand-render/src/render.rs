@@ -238,6 +238,14 @@ impl<R: Real> Rendered<R> {
                 "median or distortion gradients need a render with GeometryMaps::Rendered"
             );
         }
+        let k = self.num_objects;
+        // β_j = Σ_c π_{j,c} ∂L/∂P_c per visible surfel, for the object-sum backward.
+        let betas: Vec<R> = grads.object_sums.as_ref().map_or_else(Vec::new, |g| {
+            s.probs
+                .par_chunks(k)
+                .map(|pr| pr.iter().zip(&g.total).fold(R::ZERO, |b, (&p, &t)| b + p * t))
+                .collect()
+        });
         let maps = GradMaps {
             rgb: grads.rgb.as_deref(),
             mask: grads.mask.as_deref(),
@@ -250,9 +258,8 @@ impl<R: Real> Rendered<R> {
             object_sums: grads
                 .object_sums
                 .as_ref()
-                .map(|g| (&g.total[..], &g.on_label[..])),
+                .map(|g| (&g.total[..], &g.on_label[..], &betas[..])),
         };
-        let k = self.num_objects;
         let stride = rec::stride(k);
         let bg = s.settings.background.map(R::from_f32);
 
