@@ -108,41 +108,16 @@ pub fn detect(
         (other, _) => other,
     };
     if identity == Identity::ObjectIds {
-        let matches = channels
+        let assign: Vec<Option<usize>> = channels
             .iter()
-            .enumerate()
-            .map(
-                |(r, &(object_id, channel))| match new_ids.iter().position(|&i| i == object_id) {
-                    Some(c) => Match {
-                        object_id,
-                        channel,
-                        new_id: Some(object_id),
-                        iou: ious[r][c],
-                    },
-                    None => Match {
-                        object_id,
-                        channel,
-                        new_id: None,
-                        iou: ious[r].iter().copied().fold(0.0, f64::max),
-                    },
-                },
-            )
+            .map(|&(object_id, _)| new_ids.iter().position(|&i| i == object_id))
             .collect();
-        return Ok((matches, identity));
+        return Ok((matches(channels, &new_ids, &ious, &assign), identity));
     }
     let w = inst.width as usize;
     let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
-    let centroid = |m: &[bool]| {
-        let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
-        for (p, _) in m.iter().enumerate().filter(|(_, b)| **b) {
-            sx += (p % w) as f64;
-            sy += (p / w) as f64;
-            n += 1;
-        }
-        (n > 0).then(|| (sx / n as f64, sy / n as f64))
-    };
-    let rc: Vec<_> = rendered.iter().map(|m| centroid(m)).collect();
-    let nc: Vec<_> = new_masks.iter().map(|m| centroid(m)).collect();
+    let rc: Vec<_> = rendered.iter().map(|m| mask_centroid(m, w)).collect();
+    let nc: Vec<_> = new_masks.iter().map(|m| mask_centroid(m, w)).collect();
     let cost: Vec<Vec<f64>> = ious
         .iter()
         .zip(&rc)
@@ -164,7 +139,17 @@ pub fn detect(
     } else {
         hungarian(&cost)
     };
-    let matches = channels
+    Ok((matches(channels, &new_ids, &ious, &assign), identity))
+}
+
+/// The matches of each t = 0 object (row of `ious`) given the new instance (column) assigned to it.
+fn matches(
+    channels: &[(u16, usize)],
+    new_ids: &[u16],
+    ious: &[Vec<f64>],
+    assign: &[Option<usize>],
+) -> Vec<Match> {
+    channels
         .iter()
         .enumerate()
         .map(|(r, &(object_id, channel))| match assign[r] {
@@ -181,8 +166,18 @@ pub fn detect(
                 iou: ious[r].iter().copied().fold(0.0, f64::max),
             },
         })
-        .collect();
-    Ok((matches, identity))
+        .collect()
+}
+
+/// Mean pixel `(x, y)` of a row-major mask of width `w`; `None` when it is empty.
+pub(crate) fn mask_centroid(mask: &[bool], w: usize) -> Option<(f64, f64)> {
+    let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
+    for (p, _) in mask.iter().enumerate().filter(|(_, b)| **b) {
+        sx += (p % w) as f64;
+        sy += (p / w) as f64;
+        n += 1;
+    }
+    (n > 0).then(|| (sx / n as f64, sy / n as f64))
 }
 
 #[cfg(test)]

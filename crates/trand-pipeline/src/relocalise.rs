@@ -32,6 +32,8 @@ use trand_io::InstanceMap;
 use trand_render::{GeometryMaps, Maps, RenderSettings, render};
 
 use crate::Result;
+use crate::detect::mask_centroid;
+use crate::simulate::turn;
 
 /// Widest silhouette image the search renders (pixels): 160 px across a 640 px view is 3–4 mm per
 /// pixel at the benchmark distance (0.5 m), finer than what the refinement afterwards corrects.
@@ -160,8 +162,7 @@ impl<'a> Scorer<'a> {
             *m = [p.x as f32, p.y as f32, p.z as f32];
         }
         for q in &mut s.quats {
-            let r = rf * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
-            *q = [r.w, r.x, r.y, r.z];
+            *q = turn(rf, *q);
         }
         s
     }
@@ -352,13 +353,8 @@ pub fn relocalise(
         let rest = before.gather(&idx_us);
         let mut tip = Scorer::new(camera, settings, mask.clone(), others, &rest);
         let c0 = tip.centroid;
-        let (mut mx, mut my, mut n) = (0.0, 0.0, 0.0);
-        for (p, _) in mask.iter().enumerate().filter(|(_, b)| **b) {
-            mx += (p % w as usize) as f64;
-            my += (p / w as usize) as f64;
-            n += 1.0;
-        }
-        let (eye, dir) = (camera.center(), camera.ray_direction(mx / n, my / n));
+        let (mx, my) = mask_centroid(&mask, w as usize).expect("mask checked non-empty");
+        let (eye, dir) = (camera.center(), camera.ray_direction(mx, my));
         let mut rotations = vec![
             DQuat::IDENTITY,
             DQuat::from_rotation_x(std::f64::consts::PI),

@@ -174,9 +174,7 @@ pub fn simulate(
             let s = surfel as usize;
             surfels.means[s] = pos[particle];
             if let Some(r) = &rots {
-                let q = surfels.quats[s];
-                let q = r[particle] * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
-                surfels.quats[s] = [q.w, q.x, q.y, q.z];
+                surfels.quats[s] = turn(r[particle], surfels.quats[s]);
             }
         }
         if opts.motion == SurfelMotion::RigidPerObject {
@@ -241,10 +239,14 @@ fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
         let i = i as usize;
         let p = r * (v(before[i]) - pbar) + qbar;
         surfels.means[i] = [p.x as f32, p.y as f32, p.z as f32];
-        let q = surfels.quats[i];
-        let q = rf * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
-        surfels.quats[i] = [q.w, q.x, q.y, q.z];
+        surfels.quats[i] = turn(rf, surfels.quats[i]);
     }
+}
+
+/// A surfel orientation (stored `[w, x, y, z]`) turned by the rotation `r`: `r · q/|q|`.
+pub(crate) fn turn(r: Quat, q: [f32; 4]) -> [f32; 4] {
+    let q = r * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
+    [q.w, q.x, q.y, q.z]
 }
 
 #[cfg(test)]

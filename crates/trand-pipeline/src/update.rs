@@ -222,7 +222,9 @@ pub fn update(
         .copied()
         .filter(|c| !removed.contains(&c.0))
         .collect();
-    let unmoved = surfels.clone();
+    // The undeformed shapes, for the relocalisation's candidates (only copied when it will run).
+    let relocalising = opts.relocalise == Stage::On && object_aware;
+    let unmoved = relocalising.then(|| surfels.clone());
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
             let (m, n, d, a, b) =
@@ -234,9 +236,7 @@ pub fn update(
 
     let t_reloc = Instant::now();
     let mut relocations = Vec::new();
-    if let (Stage::On, true, Some(inst)) =
-        (opts.relocalise, object_aware, new_view.instance.as_ref())
-    {
+    if let (Some(unmoved), Some(inst)) = (&unmoved, new_view.instance.as_ref()) {
         let objects: Vec<(u16, Vec<u32>, u16)> = remaining
             .iter()
             .filter_map(|&(id, c)| {
@@ -257,7 +257,7 @@ pub fn update(
         };
         relocations = relocalise(
             &mut surfels,
-            &unmoved,
+            unmoved,
             &objects,
             &new_view.camera,
             inst,

@@ -243,7 +243,11 @@ impl<R: Real> Rendered<R> {
         let betas: Vec<R> = grads.object_sums.as_ref().map_or_else(Vec::new, |g| {
             s.probs
                 .par_chunks(k)
-                .map(|pr| pr.iter().zip(&g.total).fold(R::ZERO, |b, (&p, &t)| b + p * t))
+                .map(|pr| {
+                    pr.iter()
+                        .zip(&g.total)
+                        .fold(R::ZERO, |b, (&p, &t)| b + p * t)
+                })
                 .collect()
         });
         let maps = GradMaps {
