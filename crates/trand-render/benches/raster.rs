@@ -1,6 +1,12 @@
 //! `cargo bench -p trand-render`: forward and forward+backward at 640×480 on the tabletop scene with
 //! 10k, 30k and 100k surfels (all maps: RGB, mask, 15-channel object map, geometry), and the render a
 //! TRAN-D training step makes (`training_step`: RGB, mask, object sums against a label map, no geometry).
+//! With the allocator the `trand` binary ships with (mimalloc): each call allocates tens of megabytes of
+//! tile blocks and pair records, and glibc's allocator returns them to the system and faults them back
+//! in on every call, which is not what a training run pays.
+
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use std::sync::OnceLock;
 

@@ -1,7 +1,9 @@
 //! Renders the tabletop benchmark scene a few times, for profilers and instruction counters:
 //! `cargo run --release --example render_once -- 30000 MODE REPS` with MODE `fwd` (all maps, forward),
 //! `bwd` (all maps, forward+backward) or `train` (what a training step renders: object sums against a
-//! label map, no geometric maps, forward+backward).
+//! label map, no geometric maps, forward+backward). With the `trand` binary's allocator (mimalloc).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use trand_render::bench_scene::{tabletop_camera, tabletop_scene};
 use trand_render::{
     GeometryMaps, Maps, ObjectSumGrads, OutputGrads, RenderSettings, render, render_object_sums,

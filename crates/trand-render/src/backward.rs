@@ -38,7 +38,7 @@ use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
-use crate::simd::{PREFETCH_AHEAD, prefetch};
+use crate::simd::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 
 /// Offsets inside a pair gradient record.
 pub mod rec {
@@ -172,7 +172,12 @@ pub fn backward_tile<R: Real>(
             g_bg[idx] = bg_term * t_final[idx];
         }
     }
-    let (m1f, m2f) = (plane(lay.m1), plane(lay.m2));
+    // The distortion moments exist only with the geometric planes (a distortion gradient needs them).
+    let (m1f, m2f) = if lay.has_geometry() {
+        (plane(lay.m1), plane(lay.m2))
+    } else {
+        (&[][..], &[][..])
+    };
 
     // Running state: transmittance and the combined suffix sum.
     let mut tr: Plane<R> = std::array::from_fn(|i| t_final[i]);
@@ -213,7 +218,9 @@ pub fn backward_tile<R: Real>(
             next += 1;
         }
         if pos >= PREFETCH_AHEAD {
-            prefetch(&projs[list[pos - PREFETCH_AHEAD] as usize]);
+            let ahead = list[pos - PREFETCH_AHEAD] as usize;
+            prefetch(&projs[ahead]);
+            prefetch_slice(&probs[ahead * k_obj..(ahead + 1) * k_obj]);
         }
         let j = list[pos] as usize;
         let p = &projs[j];

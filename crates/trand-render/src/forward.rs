@@ -24,7 +24,6 @@
 
 use trand_core::Real;
 
-use crate::GeometryMaps;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
@@ -33,7 +32,7 @@ use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::Proj;
-use crate::simd::{PREFETCH_AHEAD, prefetch};
+use crate::simd::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 
 /// One channel plane of a tile.
 pub type Plane<R> = [R; TILE_PIXELS];
@@ -107,13 +106,12 @@ pub fn raster_tile<R: Real>(
     lay: &Layout,
     cam: &CamR<R>,
     background: [R; 3],
-    geometry: GeometryMaps,
     labels: Option<&[u8]>,
     buf: &mut [R],
     ibuf: &mut [u32],
     rows: &mut [u16],
 ) {
-    let geometry = geometry == GeometryMaps::Rendered;
+    let geometry = lay.has_geometry();
     let (tx0, ty0, tx1, ty1) = tile_pixels(t, bins.tiles_x, cam.width, cam.height);
     let k_obj = lay.num_objects;
     let (has_mask, has_obj) = (lay.has_mask, lay.has_objects);
@@ -161,6 +159,7 @@ pub fn raster_tile<R: Real>(
     for (pos, &j) in list.iter().enumerate() {
         if let Some(&ahead) = list.get(pos + PREFETCH_AHEAD) {
             prefetch(&projs[ahead as usize]);
+            prefetch_slice(&probs[ahead as usize * k_obj..(ahead as usize + 1) * k_obj]);
         }
         let p = &projs[j as usize];
         let (x0, y0) = (p.bbox[0].max(tx0) - tx0, p.bbox[1].max(ty0) - ty0);
@@ -273,7 +272,9 @@ pub fn raster_tile<R: Real>(
             msk[c][idx] += tr[idx] * background[c];
         }
         put(lay.rgb + c, &rgb[c]);
-        put(lay.normal + c, &nrm[c]);
+        if geometry {
+            put(lay.normal + c, &nrm[c]);
+        }
         if has_mask {
             put(lay.mask + c, &msk[c]);
         }
@@ -283,12 +284,14 @@ pub fn raster_tile<R: Real>(
     }
     let alpha: Plane<R> = std::array::from_fn(|i| R::ONE - tr[i]);
     put(lay.alpha, &alpha);
-    put(lay.depth, &dep);
-    put(lay.median, &med);
-    put(lay.dist, &dist);
     put(lay.t_final, &tr);
-    put(lay.m1, &m1);
-    put(lay.m2, &m2);
+    if geometry {
+        put(lay.depth, &dep);
+        put(lay.median, &med);
+        put(lay.dist, &dist);
+        put(lay.m1, &m1);
+        put(lay.m2, &m2);
+    }
     if let Some(sp) = lay.sums {
         buf[sp * TILE_PIXELS..sp * TILE_PIXELS + 2 * k_obj].copy_from_slice(&sums[..2 * k_obj]);
     }

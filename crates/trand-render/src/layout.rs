@@ -6,25 +6,32 @@
 //! integer block holds the index of the last blended surfel and of the median surfel per pixel. The
 //! blocks are converted to row-major images once the tiles are done.
 
+use crate::GeometryMaps;
 use crate::constants::TILE_PIXELS;
 
 /// Channel offsets inside a tile block. Mask and object channels exist only when requested; the object
 /// channels are either K planes (the map) or, against a label map, one plane of per-tile sums
-/// ([`crate::labels`]).
+/// ([`crate::labels`]). The geometric planes (depth, median, normal, distortion and its two moments)
+/// exist only when the geometry is rendered: a training step without geometric losses skips them, and
+/// with them eight of its seventeen planes (half the block memory the forward pass writes and clears).
+///
+/// Order: `rgb, [mask], [obj…], alpha, t_final, [depth, median, normal×3, dist, m1, m2], [sums]`.
 #[derive(Clone, Copy, Debug)]
 pub struct Layout {
     pub num_objects: usize,
     pub has_mask: bool,
     pub has_objects: bool,
+    pub geometry: GeometryMaps,
     pub rgb: usize,
     pub mask: usize,
     pub obj: usize,
     pub alpha: usize,
+    pub t_final: usize,
+    /// The geometric planes' offsets; meaningful only with [`GeometryMaps::Rendered`].
     pub depth: usize,
     pub median: usize,
     pub normal: usize,
     pub dist: usize,
-    pub t_final: usize,
     pub m1: usize,
     pub m2: usize,
     /// Plane of the per-tile object sums (`P` then `I`, 2K values), when rendering against labels.
@@ -33,46 +40,61 @@ pub struct Layout {
 }
 
 impl Layout {
-    pub fn new(num_objects: usize, has_mask: bool, has_objects: bool) -> Self {
+    pub fn new(
+        num_objects: usize,
+        has_mask: bool,
+        has_objects: bool,
+        geometry: GeometryMaps,
+    ) -> Self {
         let rgb = 0;
         let mask = rgb + 3;
         let obj = mask + if has_mask { 3 } else { 0 };
         let alpha = obj + if has_objects { num_objects } else { 0 };
-        let depth = alpha + 1;
+        let t_final = alpha + 1;
+        let depth = t_final + 1;
         let median = depth + 1;
         let normal = median + 1;
         let dist = normal + 3;
-        let t_final = dist + 1;
-        let m1 = t_final + 1;
+        let m1 = dist + 1;
         let m2 = m1 + 1;
+        let channels = match geometry {
+            GeometryMaps::Rendered => m2 + 1,
+            GeometryMaps::Skipped => depth,
+        };
         Self {
             num_objects,
             has_mask,
             has_objects,
+            geometry,
             rgb,
             mask,
             obj,
             alpha,
+            t_final,
             depth,
             median,
             normal,
             dist,
-            t_final,
             m1,
             m2,
             sums: None,
-            channels: m2 + 1,
+            channels,
         }
     }
 
     /// The layout with object sums instead of object planes.
-    pub fn with_sums(num_objects: usize, has_mask: bool) -> Self {
-        let l = Self::new(num_objects, has_mask, false);
+    pub fn with_sums(num_objects: usize, has_mask: bool, geometry: GeometryMaps) -> Self {
+        let l = Self::new(num_objects, has_mask, false, geometry);
         Self {
             sums: Some(l.channels),
             channels: l.channels + 1,
             ..l
         }
+    }
+
+    /// Whether the geometric planes exist.
+    pub fn has_geometry(&self) -> bool {
+        self.geometry == GeometryMaps::Rendered
     }
 
     /// Values per tile block.

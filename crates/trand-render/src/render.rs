@@ -448,31 +448,37 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         .map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
     let n = params.len();
 
-    // Stage 1: preprocess, in parallel, kept in surfel order.
-    let pre: Vec<Option<(Proj<R>, [R; MAX_OBJECTS])>> = (0..n)
-        .into_par_iter()
+    // Stage 1: preprocess, in parallel, kept in surfel order; then the visible surfels are compacted.
+    let mut all_probs = vec![R::ZERO; n * k];
+    let pre: Vec<Option<Proj<R>>> = all_probs
+        .par_chunks_mut(k)
+        .enumerate()
         .with_min_len(256)
-        .map(|i| {
-            let mut probs = [R::ZERO; MAX_OBJECTS];
-            preprocess_one(params, i, &cam, sh_degree, &mut probs[..k]).map(|p| (p, probs))
-        })
+        .map(|(i, pr)| preprocess_one(params, i, &cam, sh_degree, pr))
         .collect();
     let mut radii = vec![0.0f32; n];
     let mut projs = Vec::with_capacity(n);
     let mut probs = Vec::with_capacity(n * k);
-    for (p, pr) in pre.into_iter().flatten() {
-        radii[p.index as usize] = p.radius;
+    for p in pre.into_iter().flatten() {
+        let i = p.index as usize;
+        radii[i] = p.radius;
+        probs.extend_from_slice(&all_probs[i * k..(i + 1) * k]);
         projs.push(p);
-        probs.extend_from_slice(&pr[..k]);
     }
+    drop(all_probs);
 
     // Stage 2: binning.
     let bins = bin(&projs, cam.tiles_x(), cam.tiles_y());
 
     // Stage 3: per-tile rasterization into tile blocks.
     let lay = match labels {
-        Some(_) => Layout::with_sums(k, settings.maps.mask()),
-        None => Layout::new(k, settings.maps.mask(), settings.maps.objects()),
+        Some(_) => Layout::with_sums(k, settings.maps.mask(), settings.geometry),
+        None => Layout::new(
+            k,
+            settings.maps.mask(),
+            settings.maps.objects(),
+            settings.geometry,
+        ),
     };
     let block = lay.block();
     let n_tiles = bins.num_tiles();
@@ -488,20 +494,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         .enumerate()
         .with_min_len(4)
         .for_each(|(t, ((b, ib), rw))| {
-            raster_tile(
-                t,
-                &bins,
-                &projs,
-                &probs,
-                &lay,
-                &cam,
-                bg,
-                settings.geometry,
-                labels,
-                b,
-                ib,
-                rw,
-            )
+            raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, labels, b, ib, rw)
         });
 
     // Tile blocks → row-major maps.
@@ -557,9 +550,8 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         }
     });
     let alpha = gather(lay.alpha, 1);
-    let geometry = settings.geometry == GeometryMaps::Rendered;
     let maybe = |ch0: usize, nch: usize| {
-        if geometry {
+        if lay.has_geometry() {
             gather(ch0, nch)
         } else {
             Vec::new()

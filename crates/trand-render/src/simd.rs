@@ -16,7 +16,6 @@ use std::sync::atomic::{AtomicU8, Ordering};
 
 use trand_core::Real;
 
-use crate::GeometryMaps;
 use crate::backward::GradMaps;
 use crate::binning::Bins;
 use crate::camera::CamR;
@@ -40,6 +39,26 @@ pub fn prefetch<T>(r: &T) {
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = r;
+}
+
+/// [`prefetch`] for the cache lines of a slice (up to 256 bytes from its start): a surfel's object
+/// probabilities live in their own array, as far from the last surfel's as its `Proj`.
+#[inline(always)]
+pub fn prefetch_slice<T>(s: &[T]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let p = s.as_ptr().cast::<i8>();
+        let bytes = std::mem::size_of_val(s).min(256);
+        // The lines the slice's first `bytes` touch, from its (possibly unaligned) start.
+        let lines = (p as usize % 64 + bytes).div_ceil(64);
+        for l in 0..lines {
+            // SAFETY: prefetching never faults; the addresses stay within one line past the slice.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(64 * l)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = s;
 }
 
 /// How many list entries ahead the kernels prefetch.
@@ -94,7 +113,7 @@ dispatch!(
     /// Stage 3 for tile `t`: see [`crate::forward::raster_tile`].
     raster_tile, raster_tile_avx2, crate::forward::raster_tile,
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
-     geometry: GeometryMaps, labels: Option<&[u8]>, buf: &mut [R], ibuf: &mut [u32], rows: &mut [u16])
+     labels: Option<&[u8]>, buf: &mut [R], ibuf: &mut [u32], rows: &mut [u16])
 );
 
 dispatch!(
