@@ -54,6 +54,12 @@ pub trait Real:
     fn fast_exp8(x: [Self; 8]) -> [Self; 8] {
         x.map(Self::fast_exp)
     }
+    /// The eight lanes as `f32` when `Self` is `f32` (`None` otherwise): lets the rasterizer's lane
+    /// helpers take an instruction-level fast path for the production type while staying generic.
+    #[inline(always)]
+    fn as_f32_lanes(_v: &[Self; 8]) -> Option<&[f32; 8]> {
+        None
+    }
 }
 
 /// [`fast_exp_f32`] on eight lanes, step by step (one loop per operation, which LLVM vectorizes
@@ -120,7 +126,7 @@ pub fn fast_exp_f32(x: f32) -> f32 {
 }
 
 macro_rules! impl_real {
-    ($t:ty, $fast:expr, $fast8:expr) => {
+    ($t:ty, $fast:expr, $fast8:expr, $lanes32:expr) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
@@ -188,11 +194,21 @@ macro_rules! impl_real {
             fn fast_exp8(x: [Self; 8]) -> [Self; 8] {
                 $fast8(x)
             }
+            #[inline(always)]
+            fn as_f32_lanes(v: &[Self; 8]) -> Option<&[f32; 8]> {
+                $lanes32(v)
+            }
         }
     };
 }
-impl_real!(f32, fast_exp_f32, fast_exp_f32x8);
-impl_real!(f64, f64::exp, |x: [f64; 8]| x.map(f64::exp));
+fn f32_lanes(v: &[f32; 8]) -> Option<&[f32; 8]> {
+    Some(v)
+}
+fn no_f32_lanes(_: &[f64; 8]) -> Option<&[f32; 8]> {
+    None
+}
+impl_real!(f32, fast_exp_f32, fast_exp_f32x8, f32_lanes);
+impl_real!(f64, f64::exp, |x: [f64; 8]| x.map(f64::exp), no_f32_lanes);
 
 #[cfg(test)]
 mod tests {

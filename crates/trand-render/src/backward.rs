@@ -412,7 +412,12 @@ pub fn reduce_surfel<R: Real>(
     let stride = rec::stride(k_obj);
     let mut g = ProjGrad::<R>::default();
     dprobs.fill(R::ZERO);
-    for &pos in &bins.pair_pos[bins.pair_start[j] as usize..bins.pair_start[j + 1] as usize] {
+    let list = &bins.pair_pos[bins.pair_start[j] as usize..bins.pair_start[j + 1] as usize];
+    for (i, &pos) in list.iter().enumerate() {
+        // The records lie in tile order, scattered for one surfel: fetch the next ones early.
+        if let Some(&ahead) = list.get(i + 2) {
+            prefetch_slice(&pairs[ahead as usize * stride..(ahead as usize + 1) * stride]);
+        }
         let r = &pairs[pos as usize * stride..(pos as usize + 1) * stride];
         for c in 0..9 {
             g.t[c] += r[rec::T + c];

@@ -11,6 +11,7 @@
 //!   record per pair and sums each surfel's records in this fixed order: deterministic for any thread
 //!   count, no atomics.
 
+use rayon::slice::ParallelSliceMut;
 use trand_core::Real;
 
 use crate::preprocess::Proj;
@@ -44,7 +45,8 @@ impl Bins {
 pub fn bin<R: Real>(projs: &[Proj<R>], tiles_x: u32, tiles_y: u32) -> Bins {
     let n_tiles = (tiles_x * tiles_y) as usize;
     let mut order: Vec<u32> = (0..projs.len() as u32).collect();
-    order.sort_unstable_by_key(|&j| (projs[j as usize].depth.to_bits_u64(), j));
+    // Keys are unique (index tie-break), so the parallel sort's result is the one order.
+    order.par_sort_unstable_by_key(|&j| (projs[j as usize].depth.to_bits_u64(), j));
 
     let mut counts = vec![0u32; n_tiles + 1];
     let mut pair_start = Vec::with_capacity(projs.len() + 1);

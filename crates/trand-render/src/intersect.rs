@@ -60,8 +60,10 @@ impl<R: Real> Row<R> {
 /// `α ≥ 1/255` ([`crate::preprocess::RowCut`]); `None` when no column can. Outside it every pixel fails
 /// the alpha gate, so the kernels skip those lanes: the rectangular evaluation box of an inclined
 /// ellipse is mostly empty (on trained scenes two thirds of its pixels), and the cut changes no result.
-/// The chord is evaluated in f32 in the ellipse's centred frame and widened by one pixel plus 1 % of
-/// its width, so rounding can never put a passing pixel outside it (tested against the kernel itself).
+/// The chord is evaluated in f32 in the ellipse's centred frame (error ~1e-4 px) and widened by
+/// 0.05 px plus 0.2 % of its width, so rounding can never put a passing pixel outside it (tested
+/// against the kernel itself on varied scenes). The margin was a whole pixel plus 1 % before: on the
+/// benchmark scene that evaluated 11 % more eight-pixel groups for nothing.
 #[inline(always)]
 #[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
 pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
@@ -84,7 +86,7 @@ pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
         (None, Some(d)) => d,
         (Some(e), Some(d)) => (e.0.min(d.0), e.1.max(d.1)),
     };
-    let margin = 1.0 + 0.01 * (hi - lo);
+    let margin = 0.05 + 0.002 * (hi - lo);
     let (lo, hi) = ((lo - margin).floor(), (hi + margin).ceil());
     if !(lo <= hi) {
         return Some((i32::MIN, i32::MAX));

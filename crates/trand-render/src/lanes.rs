@@ -27,6 +27,23 @@ pub struct V<R>(pub [R; LANES]);
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct M<R>(pub [R; LANES]);
 
+/// Lane masks of every byte: `MASK_TABLE[b][l]` is 1 where bit `l` of `b` is set (8 KiB).
+static MASK_TABLE: [[f32; LANES]; 256] = {
+    let mut t = [[0.0f32; LANES]; 256];
+    let mut b = 0;
+    while b < 256 {
+        let mut l = 0;
+        while l < LANES {
+            if (b >> l) & 1 != 0 {
+                t[b][l] = 1.0;
+            }
+            l += 1;
+        }
+        b += 1;
+    }
+    t
+};
+
 /// `[f(0), …, f(7)]` by a plain loop (the standard `from_fn`/`map` are not always inlined into the AVX2
 /// kernels, and a call per lane would cost more than the arithmetic).
 macro_rules! lanes {
@@ -117,14 +134,12 @@ pub fn select<R: Real>(m: M<R>, a: V<R>, b: V<R>) -> V<R> {
 }
 
 impl<R: Real> M<R> {
-    /// Lane `l` set where bit `l` of `bits` is.
+    /// Lane `l` set where bit `l` of `bits` is: one row of [`MASK_TABLE`] (a 32-byte load for `f32`;
+    /// building the lanes bit by bit compiled to a dozen shuffles and compares).
     #[inline(always)]
     pub fn from_bits(bits: u8) -> Self {
-        Self(lanes!(R::ZERO, |l| if bits >> l & 1 != 0 {
-            R::ONE
-        } else {
-            R::ZERO
-        }))
+        let row = &MASK_TABLE[bits as usize];
+        Self(lanes!(R::ZERO, |l| R::from_f32(row[l])))
     }
     /// Lane `l` set where `f(l)`.
     #[inline(always)]
@@ -138,11 +153,7 @@ impl<R: Real> M<R> {
     }
     #[inline(always)]
     pub fn bits(self) -> u8 {
-        let mut b = 0u8;
-        for l in 0..LANES {
-            b |= u8::from(self.0[l] != R::ZERO) << l;
-        }
-        b
+        crate::simd::nonzero_bits(&self.0)
     }
     #[inline(always)]
     pub fn any(self) -> bool {

@@ -500,25 +500,26 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     // Tile blocks → row-major maps.
     let (w, h) = (cam.width as usize, cam.height as usize);
     let tiles_x = cam.tiles_x() as usize;
+    // One slab of 16 image rows per tile row, in parallel: each tile's planes are read front to back
+    // while they are contiguous (reading image row by image row instead jumped between forty blocks
+    // for every row and took three times as long).
     let gather = |ch0: usize, nch: usize| -> Vec<R> {
         let mut out = vec![R::ZERO; w * h * nch];
-        out.par_chunks_mut(w * nch)
+        out.par_chunks_mut(w * TILE as usize * nch)
             .enumerate()
-            .for_each(|(y, row)| {
-                let (ty, ly) = (y / TILE as usize, y % TILE as usize);
+            .for_each(|(ty, slab)| {
+                let rows = slab.len() / (w * nch);
                 for tx in 0..tiles_x {
                     let x0 = tx * TILE as usize;
                     let nx = (w - x0).min(TILE as usize);
-                    let b = &blocks[(ty * tiles_x + tx) * block..];
-                    // Channel-planar tile row → pixel-interleaved image row (plain indexing: a
-                    // `step_by` iterator here cost a fifth of the forward pass).
-                    let src = &b[ch0 * TILE_PIXELS + ly * TILE as usize..];
-                    for (lx, px) in row[x0 * nch..(x0 + nx) * nch]
-                        .chunks_exact_mut(nch)
-                        .enumerate()
-                    {
-                        for (c, d) in px.iter_mut().enumerate() {
-                            *d = src[c * TILE_PIXELS + lx];
+                    let b = &blocks[(ty * tiles_x + tx) * block..(ty * tiles_x + tx + 1) * block];
+                    for c in 0..nch {
+                        let plane = &b[(ch0 + c) * TILE_PIXELS..(ch0 + c + 1) * TILE_PIXELS];
+                        for (ly, src) in plane.chunks_exact(TILE as usize).take(rows).enumerate() {
+                            let row = &mut slab[(ly * w + x0) * nch..(ly * w + x0 + nx) * nch];
+                            for (d, &v) in row.iter_mut().skip(c).step_by(nch).zip(src) {
+                                *d = v;
+                            }
                         }
                     }
                 }

@@ -84,7 +84,13 @@ fn lane_intersection_equals_scalar_intersection_bit_for_bit() {
 
 #[test]
 fn row_cut_keeps_every_pixel_the_alpha_gate_passes() {
-    for (seed, (w, h)) in [(1u64, (128u32, 96u32)), (2, (64, 48)), (9, (200, 150))] {
+    for (seed, (w, h)) in [
+        (1u64, (128u32, 96u32)),
+        (2, (64, 48)),
+        (9, (200, 150)),
+        (17, (320, 240)),
+        (23, (160, 120)),
+    ] {
         let camera = common::test_camera(w, h, 0.7);
         let cam = CamR::<f32>::new(&camera, 0.2);
         let projs = projections(&varied_scene(600, seed), &cam);
