@@ -412,12 +412,17 @@ pub fn reduce_surfel<R: Real>(
     let stride = rec::stride(k_obj);
     let mut g = ProjGrad::<R>::default();
     dprobs.fill(R::ZERO);
-    let list = &bins.pair_pos[bins.pair_start[j] as usize..bins.pair_start[j + 1] as usize];
-    for (i, &pos) in list.iter().enumerate() {
-        // The records lie in tile order, scattered for one surfel: fetch the next ones early.
-        if let Some(&ahead) = list.get(i + 2) {
-            prefetch_slice(&pairs[ahead as usize * stride..(ahead as usize + 1) * stride]);
+    // The records lie in tile order, scattered for one surfel (three on average): fetch those of the
+    // surfel two ahead, which the caller reduces next but one.
+    if j + 3 < bins.pair_start.len() {
+        let ahead =
+            &bins.pair_pos[bins.pair_start[j + 2] as usize..bins.pair_start[j + 3] as usize];
+        for &pos in ahead {
+            prefetch_slice(&pairs[pos as usize * stride..(pos as usize + 1) * stride]);
         }
+    }
+    let list = &bins.pair_pos[bins.pair_start[j] as usize..bins.pair_start[j + 1] as usize];
+    for &pos in list {
         let r = &pairs[pos as usize * stride..(pos as usize + 1) * stride];
         for c in 0..9 {
             g.t[c] += r[rec::T + c];

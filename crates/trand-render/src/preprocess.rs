@@ -527,16 +527,23 @@ impl<R: Real> ParamsOf<R> {
     }
 }
 
-/// Softmax of the object logits with [`Real::fast_exp`] (its arguments `l − max l` are ≤ 0, the range
-/// it is made for): the fifteen library `exp` calls per surfel were a third of the preprocess. The
-/// backward ([`softmax_vjp`]) is written in the probabilities, so it stays the exact derivative of what
-/// was rendered.
+/// Softmax of the object logits with [`Real::fast_exp8`], eight channels at a time (its arguments
+/// `l − max l` are ≤ 0, the range it is made for; padding lanes get −∞ and come out 0): fifteen library
+/// `exp` calls per surfel were a third of the preprocess. The backward ([`softmax_vjp`]) is written in
+/// the probabilities, so it stays the exact derivative of what was rendered.
 fn softmax_fast<R: Real>(logits: &[R], out: &mut [R]) {
     let m = logits.iter().copied().fold(logits[0], R::max);
     let mut s = R::ZERO;
-    for (o, &l) in out.iter_mut().zip(logits) {
-        *o = (l - m).fast_exp();
-        s += *o;
+    for (o, l) in out.chunks_mut(8).zip(logits.chunks(8)) {
+        let mut x = [R::from_f64(f64::NEG_INFINITY); 8];
+        for (xi, &li) in x.iter_mut().zip(l) {
+            *xi = li - m;
+        }
+        let e = R::fast_exp8(x);
+        for (oi, &ei) in o.iter_mut().zip(&e) {
+            *oi = ei;
+            s += ei;
+        }
     }
     let inv = R::ONE / s;
     for o in out.iter_mut() {
