@@ -448,24 +448,29 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         .map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
     let n = params.len();
 
-    // Stage 1: preprocess, in parallel, kept in surfel order; then the visible surfels are compacted.
+    // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it); then the
+    // visible surfels' probabilities are compacted, also in parallel.
     let mut all_probs = vec![R::ZERO; n * k];
-    let pre: Vec<Option<Proj<R>>> = all_probs
+    let projs: Vec<Proj<R>> = all_probs
         .par_chunks_mut(k)
         .enumerate()
         .with_min_len(256)
-        .map(|(i, pr)| preprocess_one(params, i, &cam, sh_degree, pr))
+        .filter_map(|(i, pr)| preprocess_one(params, i, &cam, sh_degree, pr))
         .collect();
-    let mut radii = vec![0.0f32; n];
-    let mut projs = Vec::with_capacity(n);
-    let mut probs = Vec::with_capacity(n * k);
-    for p in pre.into_iter().flatten() {
-        let i = p.index as usize;
-        radii[i] = p.radius;
-        probs.extend_from_slice(&all_probs[i * k..(i + 1) * k]);
-        projs.push(p);
-    }
+    let mut probs = vec![R::ZERO; projs.len() * k];
+    probs
+        .par_chunks_mut(k)
+        .zip(projs.par_iter())
+        .with_min_len(256)
+        .for_each(|(d, p)| {
+            let i = p.index as usize;
+            d.copy_from_slice(&all_probs[i * k..(i + 1) * k]);
+        });
     drop(all_probs);
+    let mut radii = vec![0.0f32; n];
+    for p in &projs {
+        radii[p.index as usize] = p.radius;
+    }
 
     // Stage 2: binning.
     let bins = bin(&projs, cam.tiles_x(), cam.tiles_y());
@@ -564,7 +569,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     let distortion = maybe(lay.dist, 1);
     let num_pairs = bins.num_pairs();
     let pixel_pairs = projs
-        .iter()
+        .par_iter()
         .map(|p| ((p.bbox[2] - p.bbox[0] + 1) * (p.bbox[3] - p.bbox[1] + 1)) as usize)
         .sum();
     Ok(Rendered {
