@@ -33,7 +33,7 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{Plane, half_columns, tile_pixels};
-use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes};
+use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
@@ -227,6 +227,7 @@ pub fn backward_tile<R: Real>(
         let pr = &probs[j * k_obj..(j + 1) * k_obj];
         let (y0, y1) = (p.bbox[1].max(ty0) - ty0, p.bbox[3].min(ty1) - ty0);
         let pos_v = pos as u32;
+        let basis = RowBasis::new(p);
         let mut touched = false;
         let row_bits = &rows[pos * TILE as usize..(pos + 1) * TILE as usize];
         for ly in y0..=y1 {
@@ -236,7 +237,7 @@ pub fn backward_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let row = Row::new(p, yr);
+            let row = Row::at(&basis, p, yr);
             for (half, &xr) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;
                 if hb == 0 {

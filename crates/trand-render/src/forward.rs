@@ -27,7 +27,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
-use crate::intersect::{Row, intersect_lanes, ndc_depth_lanes, row_columns};
+use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes, row_columns};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
@@ -167,6 +167,7 @@ pub fn raster_tile<R: Real>(
         let span = span_mask(x0, x1);
         let pr = &probs[j as usize * k_obj..(j as usize + 1) * k_obj];
         let pos_v = pos as u32;
+        let basis = RowBasis::new(p);
         let mut touched = false;
         for ly in y0..=y1 {
             let bits = active[ly as usize] & span;
@@ -179,7 +180,7 @@ pub fn raster_tile<R: Real>(
                 continue;
             }
             rows[pos * TILE as usize + ly as usize] = bits;
-            let row = Row::new(p, yr);
+            let row = Row::at(&basis, p, yr);
             for (half, &xh) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;
                 if hb == 0 {
