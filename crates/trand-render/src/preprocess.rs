@@ -357,6 +357,10 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     for (j, l) in logits.iter_mut().enumerate() {
         *l = p.obj_logit(i, j);
     }
+    // Checked here: the fast softmax would turn a NaN or infinite logit into finite probabilities.
+    if !logits.iter().all(|l| l.is_finite()) {
+        return None;
+    }
     softmax_fast(logits, probs);
     if !rgb
         .iter()

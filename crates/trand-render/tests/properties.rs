@@ -253,15 +253,30 @@ fn nan_and_degenerate_surfels_never_poison_the_image() {
     let cam = common::test_camera(48, 40, 1.2);
     let good = common::random_scene(8, 0, 2, 0.2, 21);
     let clean = render::<f64, _>(&good, &cam, &RenderSettings::default()).unwrap();
-    let mut bad = concat(&good, &common::random_scene(5, 0, 2, 0.05, 22));
+    let mut bad = concat(&good, &common::random_scene(7, 0, 2, 0.05, 22));
     bad.means[8] = [f64::NAN, 0.0, 0.0];
     bad.quats[9] = [0.0; 4];
     bad.log_scales[10] = [f64::INFINITY, 0.0];
     bad.opacity_logits[11] = f64::NAN;
     bad.sh[12 * 3] = f64::INFINITY;
+    let k = bad.num_objects;
+    bad.obj_logits[13 * k] = f64::NAN;
+    bad.obj_logits[14 * k + 1] = f64::INFINITY;
     let out = render::<f64, _>(&bad, &cam, &RenderSettings::default()).unwrap();
     assert_eq!(out.rgb, clean.rgb);
     assert!(out.rgb.iter().all(|v| v.is_finite()));
+    // The same in f32, whose softmax uses the fast exponential (which maps NaN to a finite value).
+    let to_f32 = |p: &ParamsOf<f64>| {
+        let mut s = Surfels::new(0, p.num_objects).unwrap();
+        for _ in 0..p.means.len() {
+            s.push(&surfel([0.0; 3], 0.01, [1.0, 0.0, 0.0, 0.0], 0.5));
+        }
+        p.write_into(&mut s);
+        s
+    };
+    let clean32 = render::<f32, _>(&to_f32(&good), &cam, &RenderSettings::default()).unwrap();
+    let out32 = render::<f32, _>(&to_f32(&bad), &cam, &RenderSettings::default()).unwrap();
+    assert_eq!(out32.rgb, clean32.rgb);
     let g = out.backward(
         &bad,
         &trand_render::OutputGrads {
