@@ -46,8 +46,9 @@ pub struct RowBasis<R> {
     b0: [R; 3],
 }
 
+/// `u × v`.
 #[inline(always)]
-fn cross<R: Real>(u: &[R; 3], v: &[R; 3]) -> [R; 3] {
+pub(crate) fn cross<R: Real>(u: &[R; 3], v: &[R; 3]) -> [R; 3] {
     [
         u[1] * v[2] - u[2] * v[1],
         u[2] * v[0] - u[0] * v[2],

@@ -28,6 +28,7 @@ use trand_core::{
 
 use crate::camera::{CamR, dot};
 use crate::constants::{FILTER_INV_SQUARE, FILTER_RADIUS, MIN_ALPHA, SIGMA_CUTOFF, TILE};
+use crate::intersect::cross;
 use crate::params::{ParamsOf, SurfelParams};
 
 /// A visible surfel after preprocess: everything the per-pixel kernels read.
@@ -91,14 +92,7 @@ impl RowCut {
     fn new<R: Real>(t_u: [R; 3], t_v: [R; 3], t_w: [R; 3], center: [R; 2], c: f64) -> Self {
         let f = |v: [R; 3]| v.map(R::to_f64);
         let (tu, tv, tw) = (f(t_u), f(t_v), f(t_w));
-        let cr = |a: [f64; 3], b: [f64; 3]| {
-            [
-                a[1] * b[2] - a[2] * b[1],
-                a[2] * b[0] - a[0] * b[2],
-                a[0] * b[1] - a[1] * b[0],
-            ]
-        };
-        let cols = [cr(tv, tw), cr(tw, tu), cr(tu, tv)];
+        let cols = [cross(&tv, &tw), cross(&tw, &tu), cross(&tu, &tv)];
         let det = tu[0] * cols[0][0] + tu[1] * cols[0][1] + tu[2] * cols[0][2];
         let q = |i: usize, j: usize| {
             cols[i][0] * cols[j][0] + cols[i][1] * cols[j][1] - c * cols[i][2] * cols[j][2]
