@@ -2,8 +2,12 @@
 //! `cargo run --release --example render_once -- 30000 MODE REPS` with MODE `fwd` (all maps, forward),
 //! `bwd` (all maps, forward+backward) or `train` (what a training step renders: object sums against a
 //! label map, no geometric maps, forward+backward). With the `trand` binary's allocator (mimalloc).
+//! `TRAND_CHECKSUM=1` also prints a hash of the bits of every output and gradient, to check that a
+//! change of the kernels left the results identical.
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+use std::hash::{Hash, Hasher};
+
 use trand_render::bench_scene::{tabletop_camera, tabletop_scene};
 use trand_render::{
     GeometryMaps, Maps, ObjectSumGrads, OutputGrads, RenderSettings, render, render_object_sums,
@@ -51,9 +55,27 @@ fn main() {
             _ => render::<f32, _>(&s, &cam, &all),
         }
         .expect("render");
-        if mode != "fwd" {
-            std::hint::black_box(out.backward(&s, &grads));
+        let g = (mode != "fwd").then(|| out.backward(&s, &grads));
+        if std::env::var_os("TRAND_CHECKSUM").is_some() {
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            let mut put = |v: &[f32]| v.iter().for_each(|x| x.to_bits().hash(&mut h));
+            for m in [&out.rgb, &out.mask, &out.objects, &out.alpha, &out.depth, &out.normal] {
+                put(m);
+            }
+            if let Some(g) = &g {
+                let p = &g.params;
+                put(p.means.as_flattened());
+                put(p.log_scales.as_flattened());
+                put(p.quats.as_flattened());
+                put(&p.opacity_logits);
+                put(&p.sh);
+                put(&p.mask_sh);
+                put(&p.obj_logits);
+                put(g.densify.as_flattened());
+            }
+            println!("checksum {:016x}", h.finish());
         }
+        std::hint::black_box(g);
     }
     println!(
         "{:.1} ms per call",

@@ -33,7 +33,7 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{Plane, half_columns, tile_pixels};
-use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes};
+use crate::intersect::{Row, RowBasis, blended_lanes, ndc_depth_lanes};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
@@ -183,14 +183,6 @@ pub fn backward_tile<R: Real>(
     let mut tr: Plane<R> = std::array::from_fn(|i| t_final[i]);
     let mut suffix: Plane<R> = [z; TILE_PIXELS];
 
-    // Pixels join the walk at their last blended surfel: sort them by `last`, descending.
-    let mut order: Vec<u16> = (0..TILE_PIXELS as u16)
-        .filter(|&i| last[i as usize] > 0)
-        .collect();
-    order.sort_unstable_by_key(|&i| std::cmp::Reverse(last[i as usize]));
-    let mut next = 0usize;
-    let mut active = [0u16; TILE as usize];
-
     let list = bins.tile(t);
     let two = R::from_f64(2.0);
     let filt2 = R::from_f64(2.0 * FILTER_INV_SQUARE);
@@ -212,11 +204,6 @@ pub fn backward_tile<R: Real>(
     let (mut beta, mut coef) = (z, [z; crate::MAX_OBJECTS]);
 
     for pos in (0..max_last).rev() {
-        while next < order.len() && last[order[next] as usize] as usize > pos {
-            let i = order[next] as usize;
-            active[i / TILE as usize] |= 1 << (i % TILE as usize);
-            next += 1;
-        }
         if pos >= PREFETCH_AHEAD {
             let ahead = list[pos - PREFETCH_AHEAD] as usize;
             prefetch(&projs[ahead]);
@@ -231,8 +218,8 @@ pub fn backward_tile<R: Real>(
         let mut touched = false;
         let row_bits = &rows[pos * TILE as usize..(pos + 1) * TILE as usize];
         for ly in y0..=y1 {
-            // The forward's pixels of this row (box, row cut, still blending) that are active here.
-            let bits = active[ly as usize] & row_bits[ly as usize];
+            // The pixels of this row the forward blended this surfel on.
+            let bits = row_bits[ly as usize];
             if bits == 0 {
                 continue;
             }
@@ -245,10 +232,7 @@ pub fn backward_tile<R: Real>(
                 }
                 let base = ly as usize * TILE as usize + half * LANES;
                 let px = base..base + LANES;
-                let h = intersect_lanes(p, &row, xr, cam.near, M::from_bits(hb));
-                if !h.valid.any() {
-                    continue;
-                }
+                let h = blended_lanes(p, &row, xr, M::from_bits(hb));
                 if !touched {
                     acc = [zv; rec::OBJ];
                     acc_obj[..k_obj].fill(zv);

@@ -92,9 +92,9 @@ pub fn inside_masks(tx0: i32, ty0: i32, tx1: i32, ty1: i32) -> [u16; TILE as usi
 
 /// Rasterizes tile `t` into its float block `buf` (zero-initialised) and integer block `ibuf`;
 /// `labels` (row-major, one channel index per pixel) when the layout has object sums. `rows` (16 per
-/// list entry, zero-initialised) receives, for each surfel and tile row, the pixels it was evaluated on
-/// (still blending, inside its box, inside its row cut): the backward pass, whose pixels are a subset
-/// of those, reads them instead of solving the row cut again.
+/// list entry, zero-initialised) receives, for each surfel and tile row, the pixels it blended: exactly
+/// the pixels the backward pass visits for it, which reads them instead of solving the row cut and the
+/// alpha gates again.
 /// Called through [`crate::simd::raster_tile`], which compiles it for the CPU's widest lanes.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // c indexes planes and colour alike
 #[inline(always)]
@@ -179,8 +179,8 @@ pub fn raster_tile<R: Real>(
             if bits == 0 {
                 continue;
             }
-            rows[pos * TILE as usize + ly as usize] = bits;
             let row = Row::at(&basis, p, yr);
+            let mut blended = 0u16;
             for (half, &xh) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;
                 if hb == 0 {
@@ -203,6 +203,7 @@ pub fn raster_tile<R: Real>(
                 let stop = h.valid & t_after.lt(V::splat(min_t));
                 active[ly as usize] &= !(u16::from(stop.bits()) << (half * LANES));
                 let blend = h.valid & !stop;
+                blended |= u16::from(blend.bits()) << (half * LANES);
                 let w = select(blend, h.alpha * t_before, V::splat(z));
                 for c in 0..3 {
                     (w * p.rgb[c]).add_to(&mut rgb[c][px.clone()]);
@@ -249,6 +250,7 @@ pub fn raster_tile<R: Real>(
                     last[base + l] = last[base + l].max((pos_v + 1) * hit);
                 }
             }
+            rows[pos * TILE as usize + ly as usize] = blended;
         }
         if let (true, Some(tl)) = (touched, &tl) {
             let w_sum = acc_w.sum();

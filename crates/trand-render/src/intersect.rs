@@ -197,6 +197,27 @@ pub fn intersect_lanes<R: Real>(
     near: R,
     lanes: M<R>,
 ) -> Hits<R> {
+    hits(p, row, xs, lanes, Gates::Test { near })
+}
+
+/// [`intersect_lanes`] for lanes known to pass every gate: those the forward pass blended, which the
+/// backward pass revisits. The same values, without the gates' comparisons.
+#[inline(always)]
+pub fn blended_lanes<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, blended: M<R>) -> Hits<R> {
+    hits(p, row, xs, blended, Gates::Passed)
+}
+
+/// Whether [`hits`] tests its lanes against the depth and alpha gates.
+#[derive(Clone, Copy)]
+enum Gates<R> {
+    /// Valid lanes: `lanes` whose ray is not parallel, whose hit is beyond `near` and whose α ≥ 1/255.
+    Test { near: R },
+    /// Every lane of `lanes` is known to pass.
+    Passed,
+}
+
+#[inline(always)]
+fn hits<R: Real>(p: &Proj<R>, row: &Row<R>, xs: V<R>, lanes: M<R>, gates: Gates<R>) -> Hits<R> {
     let tw = &p.t_w;
     let px = xs * row.a[0] - row.b[0];
     let py = xs * row.a[1] - row.b[1];
@@ -216,8 +237,12 @@ pub fn intersect_lanes<R: Real>(
     let max_a = V::splat(R::from_f64(MAX_ALPHA));
     let clamped = a.gt(max_a);
     let alpha = select(clamped, max_a, a);
-    let valid =
-        lanes & nonzero & !z.lt(V::splat(near)) & !alpha.lt(V::splat(R::from_f64(MIN_ALPHA)));
+    let valid = match gates {
+        Gates::Test { near } => {
+            lanes & nonzero & !z.lt(V::splat(near)) & !alpha.lt(V::splat(R::from_f64(MIN_ALPHA)))
+        }
+        Gates::Passed => lanes,
+    };
     let (zero, one) = (V::splat(R::ZERO), V::splat(R::ONE));
     Hits {
         u: select(valid, u, zero),
