@@ -59,7 +59,14 @@ fn main() {
         if std::env::var_os("TRAND_CHECKSUM").is_some() {
             let mut h = std::collections::hash_map::DefaultHasher::new();
             let mut put = |v: &[f32]| v.iter().for_each(|x| x.to_bits().hash(&mut h));
-            for m in [&out.rgb, &out.mask, &out.objects, &out.alpha, &out.depth, &out.normal] {
+            for m in [
+                &out.rgb,
+                &out.mask,
+                &out.objects,
+                &out.alpha,
+                &out.depth,
+                &out.normal,
+            ] {
                 put(m);
             }
             if let Some(g) = &g {
