@@ -268,7 +268,7 @@ impl<R: Real> Rendered<R> {
         let bg = s.settings.background.map(R::from_f32);
 
         // Stage 4: per-tile backward into pair records.
-        let mut pairs = vec![R::ZERO; s.bins.num_pairs() * stride];
+        let mut pairs = par_zeros(s.bins.num_pairs() * stride);
         let chunks = split_by_tile(&mut pairs, &s.bins, stride);
         let block = s.lay.block();
         let tile_rows = TILE as usize;
@@ -303,7 +303,7 @@ impl<R: Real> Rendered<R> {
         let sh_deg = s.sh_degree;
         let nc3 = trand_core::sh::num_coeffs(params.sh_degree()) * 3;
         let rs = 12 + 2 * nc3 + k;
-        let mut recs = vec![R::ZERO; s.projs.len() * rs];
+        let mut recs = par_zeros(s.projs.len() * rs);
         recs.par_chunks_mut(rs)
             .zip(s.projs.par_iter())
             .enumerate()
@@ -335,20 +335,50 @@ impl<R: Real> Rendered<R> {
                 dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
                 dens[1] = g.t[5] * z * R::from_f64(s.cam.height as f64) * half;
             });
-        let mut out = ParamsOf::<R>::zeros(n, params.sh_degree(), k);
-        let mut densify = vec![[R::ZERO; 2]; n];
-        for (proj, r) in s.projs.iter().zip(recs.chunks_exact(rs)) {
-            let i = proj.index as usize;
-            let slot = out.slot(i);
-            slot.mean.copy_from_slice(&r[0..3]);
-            slot.log_scale.copy_from_slice(&r[3..5]);
-            slot.quat.copy_from_slice(&r[5..9]);
-            *slot.opacity_logit = r[9];
-            slot.sh.copy_from_slice(&r[12..12 + nc3]);
-            slot.mask_sh.copy_from_slice(&r[12 + nc3..12 + 2 * nc3]);
-            slot.obj_logits.copy_from_slice(&r[12 + 2 * nc3..]);
-            densify[i] = [r[10], r[11]];
+        // The parameter layout, element by element in parallel from the visible surfels' records (zero
+        // for culled surfels): no zero pass over the whole layout and no serial copy.
+        let mut record_of = vec![u32::MAX; n];
+        for (j, proj) in s.projs.iter().enumerate() {
+            record_of[proj.index as usize] = j as u32;
         }
+        let record = |i: usize| {
+            let j = record_of[i] as usize;
+            (j != u32::MAX as usize).then(|| &recs[j * rs..(j + 1) * rs])
+        };
+        let per_surfel = |len: usize, at: usize| -> Vec<R> {
+            let mut v = Vec::new();
+            (0..n * len)
+                .into_par_iter()
+                .with_min_len(4096)
+                .map(|e| record(e / len).map_or(R::ZERO, |r| r[at + e % len]))
+                .collect_into_vec(&mut v);
+            v
+        };
+        fn per_surfel_array<'a, R: Real, const L: usize>(
+            n: usize,
+            at: usize,
+            record: &(impl Fn(usize) -> Option<&'a [R]> + Sync),
+        ) -> Vec<[R; L]> {
+            let mut v = Vec::new();
+            (0..n)
+                .into_par_iter()
+                .with_min_len(1024)
+                .map(|i| record(i).map_or([R::ZERO; L], |r| std::array::from_fn(|c| r[at + c])))
+                .collect_into_vec(&mut v);
+            v
+        }
+        let out = ParamsOf {
+            sh_degree: params.sh_degree(),
+            num_objects: k,
+            means: per_surfel_array(n, 0, &record),
+            log_scales: per_surfel_array(n, 3, &record),
+            quats: per_surfel_array(n, 5, &record),
+            opacity_logits: per_surfel(1, 9),
+            sh: per_surfel(nc3, 12),
+            mask_sh: per_surfel(nc3, 12 + nc3),
+            obj_logits: per_surfel(k, 12 + 2 * nc3),
+        };
+        let densify = per_surfel_array(n, 10, &record);
         Gradients {
             params: out,
             densify,
@@ -371,6 +401,17 @@ impl<R: Real> OutputGrads<R> {
             }
         }
     }
+}
+
+/// A zero-filled buffer of `len` values, written by all threads: the per-call buffers run to tens of
+/// megabytes (tile blocks, pair records, per-surfel records), and filling them on the calling thread
+/// was a serial ~3 % of a training step.
+fn par_zeros<T: Default + Copy + Send + Sync>(len: usize) -> Vec<T> {
+    let mut v = Vec::new();
+    rayon::iter::repeat_n(T::default(), len)
+        .with_min_len(1 << 14)
+        .collect_into_vec(&mut v);
+    v
 }
 
 /// Splits a pair-indexed buffer (`per_pair` values per pair) into one slice per tile.
@@ -450,14 +491,14 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
 
     // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it); then the
     // visible surfels' probabilities are compacted, also in parallel.
-    let mut all_probs = vec![R::ZERO; n * k];
+    let mut all_probs = par_zeros(n * k);
     let projs: Vec<Proj<R>> = all_probs
         .par_chunks_mut(k)
         .enumerate()
         .with_min_len(256)
         .filter_map(|(i, pr)| preprocess_one(params, i, &cam, sh_degree, pr))
         .collect();
-    let mut probs = vec![R::ZERO; projs.len() * k];
+    let mut probs = par_zeros(projs.len() * k);
     probs
         .par_chunks_mut(k)
         .zip(projs.par_iter())
@@ -487,9 +528,9 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     };
     let block = lay.block();
     let n_tiles = bins.num_tiles();
-    let mut blocks = vec![R::ZERO; n_tiles * block];
-    let mut iblocks = vec![0u32; n_tiles * INT_CHANNELS * TILE_PIXELS];
-    let mut rows = vec![0u16; bins.num_pairs() * TILE as usize];
+    let mut blocks = par_zeros(n_tiles * block);
+    let mut iblocks = par_zeros(n_tiles * INT_CHANNELS * TILE_PIXELS);
+    let mut rows = par_zeros(bins.num_pairs() * TILE as usize);
     let row_chunks = split_by_tile(&mut rows, &bins, TILE as usize);
     let bg = settings.background.map(R::from_f32);
     blocks
@@ -509,7 +550,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     // while they are contiguous (reading image row by image row instead jumped between forty blocks
     // for every row and took three times as long).
     let gather = |ch0: usize, nch: usize| -> Vec<R> {
-        let mut out = vec![R::ZERO; w * h * nch];
+        let mut out = par_zeros(w * h * nch);
         out.par_chunks_mut(w * TILE as usize * nch)
             .enumerate()
             .for_each(|(ty, slab)| {
