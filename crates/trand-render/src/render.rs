@@ -335,50 +335,49 @@ impl<R: Real> Rendered<R> {
                 dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
                 dens[1] = g.t[5] * z * R::from_f64(s.cam.height as f64) * half;
             });
-        // The parameter layout, element by element in parallel from the visible surfels' records (zero
-        // for culled surfels): no zero pass over the whole layout and no serial copy.
+        // The parameter layout, filled in parallel over surfels from the visible surfels' records (zero
+        // for culled surfels).
         let mut record_of = vec![u32::MAX; n];
         for (j, proj) in s.projs.iter().enumerate() {
             record_of[proj.index as usize] = j as u32;
         }
-        let record = |i: usize| {
-            let j = record_of[i] as usize;
-            (j != u32::MAX as usize).then(|| &recs[j * rs..(j + 1) * rs])
-        };
-        let per_surfel = |len: usize, at: usize| -> Vec<R> {
-            let mut v = Vec::new();
-            (0..n * len)
-                .into_par_iter()
-                .with_min_len(4096)
-                .map(|e| record(e / len).map_or(R::ZERO, |r| r[at + e % len]))
-                .collect_into_vec(&mut v);
-            v
-        };
-        fn per_surfel_array<'a, R: Real, const L: usize>(
-            n: usize,
-            at: usize,
-            record: &(impl Fn(usize) -> Option<&'a [R]> + Sync),
-        ) -> Vec<[R; L]> {
-            let mut v = Vec::new();
-            (0..n)
-                .into_par_iter()
-                .with_min_len(1024)
-                .map(|i| record(i).map_or([R::ZERO; L], |r| std::array::from_fn(|c| r[at + c])))
-                .collect_into_vec(&mut v);
-            v
-        }
-        let out = ParamsOf {
+        let mut out = ParamsOf::<R> {
             sh_degree: params.sh_degree(),
             num_objects: k,
-            means: per_surfel_array(n, 0, &record),
-            log_scales: per_surfel_array(n, 3, &record),
-            quats: per_surfel_array(n, 5, &record),
-            opacity_logits: per_surfel(1, 9),
-            sh: per_surfel(nc3, 12),
-            mask_sh: per_surfel(nc3, 12 + nc3),
-            obj_logits: per_surfel(k, 12 + 2 * nc3),
+            means: par_zeros(n),
+            log_scales: par_zeros(n),
+            quats: par_zeros(n),
+            opacity_logits: par_zeros(n),
+            sh: par_zeros(n * nc3),
+            mask_sh: par_zeros(n * nc3),
+            obj_logits: par_zeros(n * k),
         };
-        let densify = per_surfel_array(n, 10, &record);
+        let mut densify = par_zeros(n);
+        out.means
+            .par_iter_mut()
+            .zip(out.log_scales.par_iter_mut())
+            .zip(out.quats.par_iter_mut())
+            .zip(out.opacity_logits.par_iter_mut())
+            .zip(out.sh.par_chunks_mut(nc3.max(1)))
+            .zip(out.mask_sh.par_chunks_mut(nc3.max(1)))
+            .zip(out.obj_logits.par_chunks_mut(k.max(1)))
+            .zip(densify.par_iter_mut())
+            .zip(record_of.par_iter())
+            .with_min_len(256)
+            .for_each(|((((((((m, ls), q), o), sh), msh), obj), dens), &j)| {
+                if j == u32::MAX {
+                    return;
+                }
+                let r = &recs[j as usize * rs..(j as usize + 1) * rs];
+                m.copy_from_slice(&r[0..3]);
+                ls.copy_from_slice(&r[3..5]);
+                q.copy_from_slice(&r[5..9]);
+                *o = r[9];
+                *dens = [r[10], r[11]];
+                sh.copy_from_slice(&r[12..12 + nc3]);
+                msh.copy_from_slice(&r[12 + nc3..12 + 2 * nc3]);
+                obj.copy_from_slice(&r[12 + 2 * nc3..]);
+            });
         Gradients {
             params: out,
             densify,
