@@ -5,7 +5,9 @@
 //! very code that runs in training, not of a re-implementation.
 
 use core::fmt::Debug;
-use core::ops::{Add, AddAssign, Div, DivAssign, Mul, MulAssign, Neg, Sub, SubAssign};
+use core::ops::{
+    Add, AddAssign, BitAnd, BitOr, Div, DivAssign, Mul, MulAssign, Neg, Not, Sub, SubAssign,
+};
 
 /// Floating-point scalar (`f32` or `f64`).
 pub trait Real:
@@ -28,6 +30,19 @@ pub trait Real:
 {
     const ZERO: Self;
     const ONE: Self;
+    /// The signed integer of the same width: the lane type of the rasterizer's lane masks, which hold
+    /// `-1` (all bits set, what a SIMD comparison produces) or `0`.
+    type Lane: Copy
+        + Debug
+        + PartialEq
+        + PartialOrd
+        + Send
+        + Sync
+        + 'static
+        + From<i32>
+        + BitAnd<Output = Self::Lane>
+        + BitOr<Output = Self::Lane>
+        + Not<Output = Self::Lane>;
     fn from_f64(v: f64) -> Self;
     fn to_f64(self) -> f64;
     fn from_f32(v: f32) -> Self;
@@ -54,10 +69,10 @@ pub trait Real:
     fn fast_exp8(x: [Self; 8]) -> [Self; 8] {
         x.map(Self::fast_exp)
     }
-    /// The eight lanes as `f32` when `Self` is `f32` (`None` otherwise): lets the rasterizer's lane
-    /// helpers take an instruction-level fast path for the production type while staying generic.
+    /// Eight [`Real::Lane`]s as `i32` when `Self` is `f32` (`None` otherwise): lets the rasterizer's
+    /// lane masks take an instruction-level fast path for the production type while staying generic.
     #[inline(always)]
-    fn as_f32_lanes(_v: &[Self; 8]) -> Option<&[f32; 8]> {
+    fn lanes_as_i32(_v: &[Self::Lane; 8]) -> Option<&[i32; 8]> {
         None
     }
 }
@@ -126,10 +141,11 @@ pub fn fast_exp_f32(x: f32) -> f32 {
 }
 
 macro_rules! impl_real {
-    ($t:ty, $fast:expr, $fast8:expr, $lanes32:expr) => {
+    ($t:ty, $lane:ty, $fast:expr, $fast8:expr, $masks32:expr) => {
         impl Real for $t {
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
+            type Lane = $lane;
             #[inline(always)]
             fn from_f64(v: f64) -> Self {
                 v as $t
@@ -195,20 +211,26 @@ macro_rules! impl_real {
                 $fast8(x)
             }
             #[inline(always)]
-            fn as_f32_lanes(v: &[Self; 8]) -> Option<&[f32; 8]> {
-                $lanes32(v)
+            fn lanes_as_i32(v: &[Self::Lane; 8]) -> Option<&[i32; 8]> {
+                $masks32(v)
             }
         }
     };
 }
-fn f32_lanes(v: &[f32; 8]) -> Option<&[f32; 8]> {
+fn i32_lanes(v: &[i32; 8]) -> Option<&[i32; 8]> {
     Some(v)
 }
-fn no_f32_lanes(_: &[f64; 8]) -> Option<&[f32; 8]> {
+fn no_i32_lanes(_: &[i64; 8]) -> Option<&[i32; 8]> {
     None
 }
-impl_real!(f32, fast_exp_f32, fast_exp_f32x8, f32_lanes);
-impl_real!(f64, f64::exp, |x: [f64; 8]| x.map(f64::exp), no_f32_lanes);
+impl_real!(f32, i32, fast_exp_f32, fast_exp_f32x8, i32_lanes);
+impl_real!(
+    f64,
+    i64,
+    f64::exp,
+    |x: [f64; 8]| x.map(f64::exp),
+    no_i32_lanes
+);
 
 #[cfg(test)]
 mod tests {

@@ -174,7 +174,7 @@ pub fn intersect<R: Real>(p: &Proj<R>, row: &Row<R>, x: R, near: R) -> Option<Hi
 /// parallel ray, behind the near plane, alpha below 1/255) have `valid` unset and are sanitised:
 /// `u = v = 0`, `z = 1/p_z = 1`, `G = α = 0`, so any product with them is a finite zero.
 #[derive(Clone, Copy, Debug)]
-pub struct Hits<R> {
+pub struct Hits<R: Real> {
     pub u: V<R>,
     pub v: V<R>,
     pub z: V<R>,

@@ -21,21 +21,23 @@ pub const LANES: usize = 8;
 #[derive(Clone, Copy, Debug)]
 pub struct V<R>(pub [R; LANES]);
 
-/// A lane mask, stored as `1` (set) or `0` (clear) in the lanes' own float type. Masks of the same
-/// width as the data let LLVM keep comparisons, `&`, `!` and [`select`] in vector registers (compare,
-/// multiply, blend); a `[bool; 8]` mask made it extract every lane and branch on it.
+/// A lane mask in the lanes' own width: `-1` (all bits set) where set, `0` where clear ([`Real::Lane`]),
+/// the form a SIMD comparison produces. A comparison is then one instruction, `&` and `!` are bitwise,
+/// [`select`] is one blend on the sign bit and [`M::bits`] one `movmskps`. (A `[bool; 8]` mask made
+/// LLVM extract every lane and branch on it; 0.0/1.0 float masks cost a compare or an `and` more per
+/// comparison and per select.)
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct M<R>(pub [R; LANES]);
+pub struct M<R: Real>(pub [R::Lane; LANES]);
 
-/// Lane masks of every byte: `MASK_TABLE[b][l]` is 1 where bit `l` of `b` is set (8 KiB).
-static MASK_TABLE: [[f32; LANES]; 256] = {
-    let mut t = [[0.0f32; LANES]; 256];
+/// Lane masks of every byte: `MASK_TABLE[b][l]` is -1 where bit `l` of `b` is set (8 KiB).
+static MASK_TABLE: [[i32; LANES]; 256] = {
+    let mut t = [[0i32; LANES]; 256];
     let mut b = 0;
     while b < 256 {
         let mut l = 0;
         while l < LANES {
             if (b >> l) & 1 != 0 {
-                t[b][l] = 1.0;
+                t[b][l] = -1;
             }
             l += 1;
         }
@@ -82,34 +84,34 @@ impl<R: Real> V<R> {
     }
     #[inline(always)]
     pub fn lt(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] < o.0[l] {
-            R::ONE
+        M(lanes!(lane_false::<R>(), |l| if self.0[l] < o.0[l] {
+            lane_true::<R>()
         } else {
-            R::ZERO
+            lane_false::<R>()
         }))
     }
     #[inline(always)]
     pub fn le(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] <= o.0[l] {
-            R::ONE
+        M(lanes!(lane_false::<R>(), |l| if self.0[l] <= o.0[l] {
+            lane_true::<R>()
         } else {
-            R::ZERO
+            lane_false::<R>()
         }))
     }
     #[inline(always)]
     pub fn gt(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] > o.0[l] {
-            R::ONE
+        M(lanes!(lane_false::<R>(), |l| if self.0[l] > o.0[l] {
+            lane_true::<R>()
         } else {
-            R::ZERO
+            lane_false::<R>()
         }))
     }
     #[inline(always)]
     pub fn ne(self, o: Self) -> M<R> {
-        M(lanes!(R::ZERO, |l| if self.0[l] != o.0[l] {
-            R::ONE
+        M(lanes!(lane_false::<R>(), |l| if self.0[l] != o.0[l] {
+            lane_true::<R>()
         } else {
-            R::ZERO
+            lane_false::<R>()
         }))
     }
     /// Lane sum in lane order (a fixed order: deterministic).
@@ -126,11 +128,23 @@ impl<R: Real> V<R> {
 /// `m ? a : b` per lane.
 #[inline(always)]
 pub fn select<R: Real>(m: M<R>, a: V<R>, b: V<R>) -> V<R> {
-    V(lanes!(R::ZERO, |l| if m.0[l] != R::ZERO {
+    V(lanes!(R::ZERO, |l| if m.0[l] < lane_false::<R>() {
         a.0[l]
     } else {
         b.0[l]
     }))
+}
+
+/// The set lane value, `-1`.
+#[inline(always)]
+fn lane_true<R: Real>() -> R::Lane {
+    R::Lane::from(-1)
+}
+
+/// The clear lane value, `0`.
+#[inline(always)]
+fn lane_false<R: Real>() -> R::Lane {
+    R::Lane::from(0)
 }
 
 impl<R: Real> M<R> {
@@ -139,21 +153,26 @@ impl<R: Real> M<R> {
     #[inline(always)]
     pub fn from_bits(bits: u8) -> Self {
         let row = &MASK_TABLE[bits as usize];
-        Self(lanes!(R::ZERO, |l| R::from_f32(row[l])))
+        Self(lanes!(lane_false::<R>(), |l| R::Lane::from(row[l])))
     }
     /// Lane `l` set where `f(l)`.
     #[inline(always)]
     pub fn from_fn(f: impl Fn(usize) -> bool) -> Self {
-        Self(lanes!(R::ZERO, |l| if f(l) { R::ONE } else { R::ZERO }))
+        Self(lanes!(lane_false::<R>(), |l| if f(l) {
+            lane_true::<R>()
+        } else {
+            lane_false::<R>()
+        }))
     }
     /// Whether lane `l` is set.
     #[inline(always)]
     pub fn lane(self, l: usize) -> bool {
-        self.0[l] != R::ZERO
+        self.0[l] < lane_false::<R>()
     }
+    /// Bit `l` set where lane `l` is (the lanes' sign bits: one `movmskps` for `f32`).
     #[inline(always)]
     pub fn bits(self) -> u8 {
-        crate::simd::nonzero_bits(&self.0)
+        crate::simd::sign_bits::<R>(&self.0)
     }
     #[inline(always)]
     pub fn any(self) -> bool {
@@ -163,11 +182,9 @@ impl<R: Real> M<R> {
 
 impl<R: Real> BitAnd for M<R> {
     type Output = M<R>;
-    /// `a & b` as the product of 0/1 lanes.
     #[inline(always)]
-    #[allow(clippy::suspicious_arithmetic_impl)]
     fn bitand(self, o: M<R>) -> M<R> {
-        M(lanes!(R::ZERO, |l| self.0[l] * o.0[l]))
+        M(lanes!(lane_false::<R>(), |l| self.0[l] & o.0[l]))
     }
 }
 
@@ -175,7 +192,7 @@ impl<R: Real> Not for M<R> {
     type Output = M<R>;
     #[inline(always)]
     fn not(self) -> M<R> {
-        M(lanes!(R::ZERO, |l| R::ONE - self.0[l]))
+        M(lanes!(lane_false::<R>(), |l| !self.0[l]))
     }
 }
 

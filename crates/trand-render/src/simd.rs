@@ -61,27 +61,27 @@ pub fn prefetch_slice<T>(s: &[T]) {
     let _ = s;
 }
 
-/// Bit `l` set where lane `l` of `v` is non-zero: one compare and one `movmskps` per four lanes for
-/// `f32` on x86-64 (the portable loop below compiled to some thirty shuffles, shifts and ors, and the
-/// forward kernel asks once per eight-pixel group which lanes stopped).
+/// Bit `l` set where lane `l` of the mask `m` is (its sign bit): two `movmskps` for `f32` lanes on
+/// x86-64 (LLVM compiled the portable loop below to shifts, ands and a horizontal reduction).
 #[inline(always)]
-pub fn nonzero_bits<R: Real>(v: &[R; 8]) -> u8 {
+pub fn sign_bits<R: Real>(m: &[R::Lane; 8]) -> u8 {
     #[cfg(target_arch = "x86_64")]
-    if let Some(f) = R::as_f32_lanes(v) {
-        use std::arch::x86_64::{_mm_cmpneq_ps, _mm_loadu_ps, _mm_movemask_ps, _mm_setzero_ps};
-        // SAFETY: SSE is part of the x86-64 baseline; both loads read four `f32` inside `f`.
+    if let Some(v) = R::lanes_as_i32(m) {
+        use std::arch::x86_64::{_mm_castsi128_ps, _mm_loadu_si128, _mm_movemask_ps};
+        // SAFETY: SSE2 is part of the x86-64 baseline; both loads read four `i32` inside `v`.
         let (lo, hi) = unsafe {
-            let z = _mm_setzero_ps();
+            let p = v.as_ptr().cast::<std::arch::x86_64::__m128i>();
             (
-                _mm_movemask_ps(_mm_cmpneq_ps(_mm_loadu_ps(f.as_ptr()), z)),
-                _mm_movemask_ps(_mm_cmpneq_ps(_mm_loadu_ps(f.as_ptr().add(4)), z)),
+                _mm_movemask_ps(_mm_castsi128_ps(_mm_loadu_si128(p))),
+                _mm_movemask_ps(_mm_castsi128_ps(_mm_loadu_si128(p.add(1)))),
             )
         };
         return (lo | hi << 4) as u8;
     }
+    let zero = R::Lane::from(0);
     let mut b = 0u8;
-    for (l, &x) in v.iter().enumerate() {
-        b |= u8::from(x != R::ZERO) << l;
+    for (l, &x) in m.iter().enumerate() {
+        b |= u8::from(x < zero) << l;
     }
     b
 }
