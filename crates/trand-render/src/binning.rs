@@ -106,7 +106,7 @@ fn radix_order(mut keys: Vec<u64>) -> Vec<u32> {
         for &k in &keys {
             start[((k >> shift) & 0xff) as usize + 1] += 1;
         }
-        if start.iter().any(|&c| c == n) {
+        if start.contains(&n) {
             continue;
         }
         for b in 0..256 {

@@ -243,8 +243,9 @@ fn view_dir<R: Real>(mean: [R; 3], cam: &CamR<R>) -> ([R; 3], R) {
     }
 }
 
-/// Forward preprocess of surfel `i`. Writes the object probabilities into `probs` (length K) and returns
-/// `None` when the surfel is culled (behind the near plane, off-screen, degenerate or non-finite).
+/// Forward preprocess of surfel `i`: `None` when the surfel is culled (behind the near plane,
+/// off-screen, degenerate or non-finite, object logits included). Its object probabilities come from
+/// [`softmax_block`].
 // `!(a > b)` on purpose: NaN fails the test and is culled.
 #[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
@@ -252,7 +253,6 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     i: usize,
     cam: &CamR<R>,
     sh_degree: u32,
-    probs: &mut [R],
 ) -> Option<Proj<R>> {
     let g = geometry(p, i, cam)?;
     if !(g.pv[2] > cam.near) {
@@ -345,23 +345,11 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     basis(sh_degree, dir, &mut y);
     let (rgb, c1) = sh_colour(|k, ch| p.sh(i, k, ch), nc, &y);
     let (mask, c2) = sh_colour(|k, ch| p.mask_sh(i, k, ch), nc, &y);
-    let k = p.num_objects();
-    let mut logits = [R::ZERO; 64];
-    let logits = &mut logits[..k];
-    for (j, l) in logits.iter_mut().enumerate() {
-        *l = p.obj_logit(i, j);
-    }
     // Checked here: the fast softmax would turn a NaN or infinite logit into finite probabilities.
-    if !logits.iter().all(|l| l.is_finite()) {
+    if !(0..p.num_objects()).all(|j| p.obj_logit(i, j).is_finite()) {
         return None;
     }
-    softmax_fast(logits, probs);
-    if !rgb
-        .iter()
-        .chain(&mask)
-        .chain(probs.iter())
-        .all(|v| v.is_finite())
-    {
+    if !rgb.iter().chain(&mask).all(|v| v.is_finite()) {
         return None;
     }
     Some(Proj {
@@ -525,39 +513,50 @@ impl<R: Real> ParamsOf<R> {
     }
 }
 
-/// Softmax of the object logits with [`Real::fast_exp8`], eight channels at a time (its arguments
-/// `l − max l` are ≤ 0, the range it is made for; padding lanes get −∞ and come out 0): fifteen library
-/// `exp` calls per surfel were a third of the preprocess. The backward ([`softmax_vjp`]) is written in
-/// the probabilities, so it stays the exact derivative of what was rendered.
-///
-/// The logits are finite (checked by the caller), so the maximum is a plain comparison; the loops run
-/// on fixed eight-lane arrays with explicit bounds (the slice-iterator form compiled to some 650
-/// instructions per surfel with NaN-aware `max` sequences and a `memcpy` call).
-fn softmax_fast<R: Real>(logits: &[R], out: &mut [R]) {
-    let k = logits.len().min(out.len());
-    let mut m = logits[0];
-    for &l in &logits[..k] {
-        if l > m {
-            m = l;
+/// Softmax of the object logits of up to eight visible surfels `ps` at once, one surfel per lane, with
+/// [`Real::fast_exp8`] (its arguments `l − max l` are ≤ 0, the range it is made for), into `out`
+/// (`ps.len() × k`, surfel-major). Per surfel the same operations in the same order as a scalar softmax
+/// (channel sums in channel order), so the result does not depend on a surfel's neighbours in the
+/// block. The logits are finite ([`preprocess_one`] culls the rest), so every sum is ≥ 1. One surfel at
+/// a time, the per-lane bookkeeping of fifteen channels cost ~600 instructions per surfel, a fifth of
+/// the preprocess; across surfels the exponentials fill all lanes. The backward ([`softmax_vjp`]) is
+/// written in the probabilities, so it stays the exact derivative of what was rendered.
+pub fn softmax_block<R: Real, P: SurfelParams<R>>(
+    params: &P,
+    ps: &[Proj<R>],
+    k: usize,
+    out: &mut [R],
+) {
+    const L: usize = crate::lanes::LANES;
+    let n = ps.len().min(L);
+    let mut x = [[R::ZERO; L]; crate::MAX_OBJECTS];
+    let mut m = [R::ZERO; L];
+    for (l, p) in ps.iter().take(n).enumerate() {
+        let i = p.index as usize;
+        m[l] = params.obj_logit(i, 0);
+        for (c, xc) in x.iter_mut().enumerate().take(k) {
+            let v = params.obj_logit(i, c);
+            xc[l] = v;
+            if v > m[l] {
+                m[l] = v;
+            }
         }
     }
-    let mut s = R::ZERO;
-    let mut c0 = 0;
-    while c0 < k {
-        let n = (k - c0).min(8);
-        let mut x = [R::from_f64(f64::NEG_INFINITY); 8];
-        for l in 0..n {
-            x[l] = logits[c0 + l] - m;
+    let mut s = [R::ZERO; L];
+    for xc in x.iter_mut().take(k) {
+        let mut d = [R::ZERO; L];
+        for l in 0..L {
+            d[l] = xc[l] - m[l];
         }
-        let e = R::fast_exp8(x);
-        for l in 0..n {
-            out[c0 + l] = e[l];
-            s += e[l];
+        *xc = R::fast_exp8(d);
+        for l in 0..L {
+            s[l] += xc[l];
         }
-        c0 += 8;
     }
-    let inv = R::ONE / s;
-    for o in &mut out[..k] {
-        *o *= inv;
+    for l in 0..n {
+        let inv = R::ONE / s[l];
+        for (c, xc) in x.iter().enumerate().take(k) {
+            out[l * k + c] = xc[l] * inv;
+        }
     }
 }

@@ -8,9 +8,12 @@ use crate::binning::{Bins, bin};
 use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
 use crate::labels::{ObjectSumGrads, ObjectSums};
+use crate::lanes::LANES;
 use crate::layout::{INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams};
-use crate::preprocess::{Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one};
+use crate::preprocess::{
+    Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one, softmax_block,
+};
 use crate::simd::{backward_tile, raster_tile};
 
 /// The largest number of object channels the kernels support (fixed-size stack buffers).
@@ -489,24 +492,18 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     let n = params.len();
 
     // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it); then the
-    // visible surfels' probabilities are compacted, also in parallel.
-    let mut all_probs = par_zeros(n * k);
-    let projs: Vec<Proj<R>> = all_probs
-        .par_chunks_mut(k)
-        .enumerate()
+    // visible surfels' object probabilities, eight surfels at a time.
+    let projs: Vec<Proj<R>> = (0..n)
+        .into_par_iter()
         .with_min_len(256)
-        .filter_map(|(i, pr)| preprocess_one(params, i, &cam, sh_degree, pr))
+        .filter_map(|i| preprocess_one(params, i, &cam, sh_degree))
         .collect();
     let mut probs = par_zeros(projs.len() * k);
     probs
-        .par_chunks_mut(k)
-        .zip(projs.par_iter())
-        .with_min_len(256)
-        .for_each(|(d, p)| {
-            let i = p.index as usize;
-            d.copy_from_slice(&all_probs[i * k..(i + 1) * k]);
-        });
-    drop(all_probs);
+        .par_chunks_mut(LANES * k)
+        .zip(projs.par_chunks(LANES))
+        .with_min_len(32)
+        .for_each(|(out, ps)| softmax_block(params, ps, k, out));
     let mut radii = vec![0.0f32; n];
     for p in &projs {
         radii[p.index as usize] = p.radius;

@@ -37,7 +37,7 @@ fn varied_scene(n: usize, seed: u64) -> Surfels {
 
 fn projections(s: &Surfels, cam: &CamR<f32>) -> Vec<Proj<f32>> {
     (0..s.len())
-        .filter_map(|i| preprocess_one::<f32, _>(s, i, cam, 0, &mut [0.0; 3]))
+        .filter_map(|i| preprocess_one::<f32, _>(s, i, cam, 0))
         .collect()
 }
 
