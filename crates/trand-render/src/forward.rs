@@ -3,7 +3,7 @@
 //!
 //! Surfel-outer, pixel-inner: each surfel of the tile's depth-sorted list visits only the pixels of its
 //! evaluation box (see [`crate::preprocess`]), and on each row only the columns where its alpha can
-//! reach 1/255 ([`crate::intersect::row_columns`]). A 16-bit mask per tile row marks the pixels still
+//! reach 1/255 ([`crate::intersect::tile_row_columns`]). A 16-bit mask per tile row marks the pixels still
 //! blending, so saturated pixels cost nothing and the tile stops once every mask is empty. A row is
 //! processed as two groups of eight pixels ([`crate::lanes`]): one vector instruction per operation
 //! for eight pixels, with masks where the scalar code branched. The
@@ -27,7 +27,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
-use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes, row_columns};
+use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes, tile_row_columns};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
@@ -65,20 +65,6 @@ pub fn half_columns<R: Real>(tx0: i32) -> [V<R>; 2] {
             R::from_f64((tx0 + (h * LANES + l) as i32) as f64)
         }))
     })
-}
-
-/// `bits` (a row's pixels, tile-local, within the surfel's box columns `x0..=x1`) restricted to the
-/// columns of image row `yr` where the surfel can reach α ≥ 1/255 ([`row_columns`]); 0 when none.
-#[inline(always)]
-pub fn cut_row<R: Real>(p: &Proj<R>, yr: R, tx0: i32, x0: i32, x1: i32, bits: u16) -> u16 {
-    let Some((c0, c1)) = row_columns(p, yr) else {
-        return 0;
-    };
-    let (c0, c1) = (c0.max(tx0 + x0) - tx0, c1.min(tx0 + x1) - tx0);
-    if c0 > c1 {
-        return 0;
-    }
-    bits & span_mask(c0, c1)
 }
 
 /// The rows' masks of pixels inside the image.
@@ -168,17 +154,24 @@ pub fn raster_tile<R: Real>(
         let pr = &probs[j as usize * k_obj..(j as usize + 1) * k_obj];
         let pos_v = pos as u32;
         let basis = RowBasis::new(p);
+        let (cut_lo, cut_hi) = tile_row_columns(p, ty0);
         let mut touched = false;
         for ly in y0..=y1 {
             let bits = active[ly as usize] & span;
             if bits == 0 {
                 continue;
             }
-            let yr = R::from_f64((ty0 + ly) as f64);
-            let bits = cut_row(p, yr, tx0, x0, x1, bits);
+            // The row's columns where α ≥ 1/255 is possible, within the box.
+            let c0 = cut_lo[ly as usize].max(tx0 + x0) - tx0;
+            let c1 = cut_hi[ly as usize].min(tx0 + x1) - tx0;
+            if c0 > c1 {
+                continue;
+            }
+            let bits = bits & span_mask(c0, c1);
             if bits == 0 {
                 continue;
             }
+            let yr = R::from_f64((ty0 + ly) as f64);
             let row = Row::at(&basis, p, yr);
             let mut blended = 0u16;
             for (half, &xh) in xs.iter().enumerate() {

@@ -7,7 +7,7 @@ mod common;
 use rand::{RngExt, SeedableRng};
 use trand_core::{Real, Surfels, math::logit, sh::rgb_to_dc, surfels::Surfel};
 use trand_render::camera::CamR;
-use trand_render::intersect::{Row, intersect, intersect_lanes, row_columns};
+use trand_render::intersect::{Row, intersect, intersect_lanes, row_columns, tile_row_columns};
 use trand_render::lanes::{M, V};
 use trand_render::preprocess::{Proj, preprocess_one};
 use trand_render::simd::{Dispatch, set_dispatch};
@@ -121,6 +121,29 @@ fn row_cut_keeps_every_pixel_the_alpha_gate_passes() {
             "seed {seed}: cut removed {cut_away} of {boxed}"
         );
     }
+}
+
+#[test]
+fn tile_row_columns_equal_the_row_by_row_cut() {
+    const BIG: i32 = 1 << 30;
+    let camera = common::test_camera(200, 150, 0.7);
+    let cam = CamR::<f32>::new(&camera, 0.2);
+    let projs = projections(&varied_scene(600, 31), &cam);
+    let (mut rows, mut empty) = (0usize, 0usize);
+    for p in &projs {
+        for ty0 in (p.bbox[1] / 16 * 16..=p.bbox[3]).step_by(16) {
+            let (lo, hi) = tile_row_columns(p, ty0);
+            for r in 0..16 {
+                let want = row_columns(p, (ty0 + r as i32) as f32)
+                    .map(|(l, h)| (l.clamp(-BIG, BIG), h.clamp(-BIG, BIG)));
+                let got = (lo[r] <= hi[r]).then_some((lo[r], hi[r]));
+                assert_eq!(got, want, "surfel {} row {}", p.index, ty0 + r as i32);
+                rows += 1;
+                empty += usize::from(want.is_none());
+            }
+        }
+    }
+    assert!(rows > 10_000 && empty > 1000, "{rows} rows, {empty} empty");
 }
 
 #[test]
