@@ -9,7 +9,7 @@ use trand_core::Real;
 
 use crate::constants::{FILTER_INV_SQUARE, MAX_ALPHA, MIN_ALPHA};
 use crate::lanes::{M, V, rsub, select};
-use crate::preprocess::Proj;
+use crate::preprocess::{Proj, RowCut};
 
 /// A ray–surfel hit that passes the depth and alpha gates.
 #[derive(Clone, Copy, Debug)]
@@ -100,74 +100,62 @@ impl<R: Real> Row<R> {
 /// against the kernel itself on varied scenes). The margin was a whole pixel plus 1 % before: on the
 /// benchmark scene that evaluated 11 % more eight-pixel groups for nothing.
 #[inline(always)]
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
 pub fn row_columns<R: Real>(p: &Proj<R>, y: R) -> Option<(i32, i32)> {
     let cut = &p.cut;
-    let y = y.to_f64() as f32;
-    let Some([xc, m, y0, a, d]) = cut.ellipse else {
+    let Some(ellipse) = cut.ellipse else {
         return Some((i32::MIN, i32::MAX));
     };
-    let dy = y - y0;
-    let r2 = a * dy * dy + d;
-    let ellipse = (r2 >= 0.0).then(|| {
-        let (h, xm) = (r2.sqrt(), xc - m * dy);
-        (xm - h, xm + h)
-    });
-    let rf = cut.filter_radius;
-    let disc = ((y - cut.center[1]).abs() <= rf).then(|| (cut.center[0] - rf, cut.center[0] + rf));
-    let (lo, hi) = match (ellipse, disc) {
-        (None, None) => return None,
-        (Some(e), None) => e,
-        (None, Some(d)) => d,
-        (Some(e), Some(d)) => (e.0.min(d.0), e.1.max(d.1)),
-    };
-    let margin = 0.05 + 0.002 * (hi - lo);
-    let (lo, hi) = ((lo - margin).floor(), (hi + margin).ceil());
-    if !(lo <= hi) {
-        return Some((i32::MIN, i32::MAX));
-    }
+    let (reachable, lo, hi) = row_chord(cut, ellipse, y.to_f64() as f32);
     // Saturating casts: far outside the image either way.
-    Some((lo as i32, hi as i32))
+    reachable.then_some((lo as i32, hi as i32))
 }
 
 /// [`row_columns`] for the sixteen image rows `ty0 .. ty0 + 16` of a tile at once (the forward kernel
 /// asks for every row of every pair, ~60 scalar instructions a row; sixteen lanes of the same f32
 /// operations cost about as much as two rows). Row `r` gets `(lo[r], hi[r])`, with `lo > hi` where
-/// `row_columns` says `None` and column bounds clamped to ±2³⁰ (the kernel clamps them to the tile,
-/// so that equals its saturating casts).
+/// `row_columns` says `None`.
 #[inline(always)]
-#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
-#[allow(clippy::manual_clamp)] // max/min are vector instructions; `clamp` asserts and is not vectorized the same way
 pub fn tile_row_columns<R: Real>(p: &Proj<R>, ty0: i32) -> ([i32; 16], [i32; 16]) {
-    const BIG: f32 = (1u32 << 30) as f32;
     let cut = &p.cut;
-    let Some([xc, m, y0, a, d]) = cut.ellipse else {
+    let Some(ellipse) = cut.ellipse else {
         return ([i32::MIN; 16], [i32::MAX; 16]);
     };
-    let rf = cut.filter_radius;
-    let (dlo, dhi) = (cut.center[0] - rf, cut.center[0] + rf);
     let (mut lo, mut hi) = ([0i32; 16], [0i32; 16]);
     for r in 0..16 {
-        let y = (ty0 + r as i32) as f32;
-        let dy = y - y0;
-        let r2 = a * dy * dy + d;
-        let (h, xm) = (r2.sqrt(), xc - m * dy);
-        let (elo, ehi) = (xm - h, xm + h);
-        let e_ok = r2 >= 0.0;
-        let d_ok = (y - cut.center[1]).abs() <= rf;
-        let (l, u) = match (e_ok, d_ok) {
-            (true, true) => (elo.min(dlo), ehi.max(dhi)),
-            (true, false) => (elo, ehi),
-            _ => (dlo, dhi),
-        };
-        let margin = 0.05 + 0.002 * (u - l);
-        let (l, u) = ((l - margin).floor(), (u + margin).ceil());
-        let (l, u) = if !(l <= u) { (-BIG, BIG) } else { (l, u) };
-        let none = !e_ok && !d_ok;
-        lo[r] = if none { 1 } else { l.max(-BIG).min(BIG) as i32 };
-        hi[r] = if none { 0 } else { u.max(-BIG).min(BIG) as i32 };
+        let (reachable, l, u) = row_chord(cut, ellipse, (ty0 + r as i32) as f32);
+        lo[r] = if reachable { l as i32 } else { 1 };
+        hi[r] = if reachable { u as i32 } else { 0 };
     }
     (lo, hi)
+}
+
+/// The chord of row `y` for [`row_columns`]: whether any column can pass the gate, and the widened
+/// bounds (floored and ceiled; `±∞` when they came out NaN). Written without branches so that
+/// [`tile_row_columns`] runs it on sixteen rows in vector lanes.
+#[inline(always)]
+#[allow(clippy::neg_cmp_op_on_partial_ord)] // `!(lo <= hi)` also catches NaN
+fn row_chord(cut: &RowCut, [xc, m, y0, a, d]: [f32; 5], y: f32) -> (bool, f32, f32) {
+    let rf = cut.filter_radius;
+    let dy = y - y0;
+    let r2 = a * dy * dy + d;
+    let (h, xm) = (r2.sqrt(), xc - m * dy);
+    let (elo, ehi) = (xm - h, xm + h);
+    let (dlo, dhi) = (cut.center[0] - rf, cut.center[0] + rf);
+    let e_ok = r2 >= 0.0;
+    let d_ok = (y - cut.center[1]).abs() <= rf;
+    let (lo, hi) = match (e_ok, d_ok) {
+        (true, true) => (elo.min(dlo), ehi.max(dhi)),
+        (true, false) => (elo, ehi),
+        _ => (dlo, dhi),
+    };
+    let margin = 0.05 + 0.002 * (hi - lo);
+    let (lo, hi) = ((lo - margin).floor(), (hi + margin).ceil());
+    let (lo, hi) = if !(lo <= hi) {
+        (f32::NEG_INFINITY, f32::INFINITY)
+    } else {
+        (lo, hi)
+    };
+    (e_ok || d_ok, lo, hi)
 }
 
 /// The hit of pixel `(x, row.y)` with surfel `p`, if it passes the depth and alpha gates.
