@@ -4,6 +4,7 @@
 //! need the very same rasterizer to run on `f64` parameters. [`SurfelParams`] abstracts over both:
 //! the preprocess stage is the only reader, once per surfel per render.
 
+use rayon::prelude::*;
 use trand_core::{Real, Surfels, sh::num_coeffs};
 
 /// Per-surfel parameter access in precision `R` (raw, pre-activation values; see [`Surfels`]).
@@ -89,19 +90,20 @@ pub struct ParamsOf<R> {
 }
 
 impl<R: Real> ParamsOf<R> {
-    /// Zero-filled container for `n` surfels.
+    /// Zero-filled container for `n` surfels (filled by all threads: the backward pass allocates one
+    /// per call).
     pub fn zeros(n: usize, sh_degree: u32, num_objects: usize) -> Self {
         let nc = num_coeffs(sh_degree) * 3;
         Self {
             sh_degree,
             num_objects,
-            means: vec![[R::ZERO; 3]; n],
-            log_scales: vec![[R::ZERO; 2]; n],
-            quats: vec![[R::ZERO; 4]; n],
-            opacity_logits: vec![R::ZERO; n],
-            sh: vec![R::ZERO; n * nc],
-            mask_sh: vec![R::ZERO; n * nc],
-            obj_logits: vec![R::ZERO; n * num_objects],
+            means: par_zeros(n),
+            log_scales: par_zeros(n),
+            quats: par_zeros(n),
+            opacity_logits: par_zeros(n),
+            sh: par_zeros(n * nc),
+            mask_sh: par_zeros(n * nc),
+            obj_logits: par_zeros(n * num_objects),
         }
     }
 
@@ -189,4 +191,15 @@ impl<R: Real> SurfelParams<R> for ParamsOf<R> {
     fn obj_logit(&self, i: usize, k: usize) -> R {
         self.obj_logits[i * self.num_objects + k]
     }
+}
+
+/// A zero-filled buffer of `len` values, written by all threads: the renderer's per-call buffers run to
+/// tens of megabytes (tile blocks, pair records, per-surfel records, gradients), and filling them on
+/// the calling thread was a serial ~3 % of a training step.
+pub(crate) fn par_zeros<T: Default + Copy + Send + Sync>(len: usize) -> Vec<T> {
+    let mut v = Vec::new();
+    rayon::iter::repeat_n(T::default(), len)
+        .with_min_len(1 << 14)
+        .collect_into_vec(&mut v);
+    v
 }

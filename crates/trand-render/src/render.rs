@@ -10,7 +10,7 @@ use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
 use crate::labels::{ObjectSumGrads, ObjectSums};
 use crate::lanes::LANES;
 use crate::layout::{INT_CHANNELS, Layout};
-use crate::params::{ParamsOf, SurfelParams};
+use crate::params::{ParamsOf, SurfelParams, par_zeros};
 use crate::preprocess::{
     Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one, softmax_block,
 };
@@ -145,7 +145,7 @@ struct Saved<R> {
     bins: Bins,
     blocks: Vec<R>,
     iblocks: Vec<u32>,
-    /// Per list entry (pair), the forward's evaluated pixels of each of the 16 tile rows.
+    /// Per list entry (pair), the pixels of each of the 16 tile rows that the surfel blended.
     rows: Vec<u16>,
     labels: Option<Vec<u8>>,
 }
@@ -344,17 +344,7 @@ impl<R: Real> Rendered<R> {
         for (j, proj) in s.projs.iter().enumerate() {
             record_of[proj.index as usize] = j as u32;
         }
-        let mut out = ParamsOf::<R> {
-            sh_degree: params.sh_degree(),
-            num_objects: k,
-            means: par_zeros(n),
-            log_scales: par_zeros(n),
-            quats: par_zeros(n),
-            opacity_logits: par_zeros(n),
-            sh: par_zeros(n * nc3),
-            mask_sh: par_zeros(n * nc3),
-            obj_logits: par_zeros(n * k),
-        };
+        let mut out = ParamsOf::<R>::zeros(n, params.sh_degree(), k);
         let mut densify = par_zeros(n);
         out.means
             .par_iter_mut()
@@ -403,17 +393,6 @@ impl<R: Real> OutputGrads<R> {
             }
         }
     }
-}
-
-/// A zero-filled buffer of `len` values, written by all threads: the per-call buffers run to tens of
-/// megabytes (tile blocks, pair records, per-surfel records), and filling them on the calling thread
-/// was a serial ~3 % of a training step.
-fn par_zeros<T: Default + Copy + Send + Sync>(len: usize) -> Vec<T> {
-    let mut v = Vec::new();
-    rayon::iter::repeat_n(T::default(), len)
-        .with_min_len(1 << 14)
-        .collect_into_vec(&mut v);
-    v
 }
 
 /// Splits a pair-indexed buffer (`per_pair` values per pair) into one slice per tile.
