@@ -216,16 +216,8 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
         rng,
         slices,
     ));
-    let others = [
-        ShapeKind::Tumbler,
-        ShapeKind::WineGlass,
-        ShapeKind::Bottle,
-        ShapeKind::Bowl,
-        ShapeKind::Mug,
-        ShapeKind::Sphere,
-    ];
     for id in 3..=n {
-        let kind = others[rng.random_range(0..others.len())];
+        let kind = ShapeKind::ALL[rng.random_range(0..ShapeKind::ALL.len())];
         let material = if rng.random_bool(GLASS_PROBABILITY) {
             glass(rng)
         } else {

@@ -210,6 +210,18 @@ pub enum ShapeKind {
     Sphere,
 }
 
+impl ShapeKind {
+    /// Every kind, in declaration order.
+    pub const ALL: [ShapeKind; 6] = [
+        ShapeKind::Tumbler,
+        ShapeKind::WineGlass,
+        ShapeKind::Bottle,
+        ShapeKind::Bowl,
+        ShapeKind::Mug,
+        ShapeKind::Sphere,
+    ];
+}
+
 /// A built object model: mesh (centred), its kind and the parameters it was built from.
 #[derive(Clone, Debug)]
 pub struct Model {
@@ -533,14 +545,7 @@ mod tests {
     #[test]
     fn every_shape_is_closed_outward_and_thin_walled() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-        for kind in [
-            ShapeKind::Tumbler,
-            ShapeKind::WineGlass,
-            ShapeKind::Bottle,
-            ShapeKind::Bowl,
-            ShapeKind::Mug,
-            ShapeKind::Sphere,
-        ] {
+        for kind in ShapeKind::ALL {
             let m = build(kind, &mut rng, 48);
             let v = m.mesh.volume();
             let (lo, hi) = m.mesh.bounds();

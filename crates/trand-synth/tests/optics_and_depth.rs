@@ -7,7 +7,7 @@ use trand_synth::cameras::intrinsics;
 use trand_synth::material::{Material, Texture};
 use trand_synth::scene::{AreaLight, Background, Environment, Placed, RenderScene, Table};
 use trand_synth::shapes::lathe;
-use trand_synth::trace::{RenderSettings, render_view};
+use trand_synth::trace::{RenderSettings, ViewImages, render_view};
 
 fn env() -> Environment {
     Environment {
@@ -29,6 +29,19 @@ fn env() -> Environment {
     }
 }
 
+/// One sample per pixel: the depth is exact, the colour noise does not matter here.
+fn render_one_sample(scene: &RenderScene, cam: &Camera, seed: u64) -> ViewImages {
+    render_view(
+        scene,
+        cam,
+        RenderSettings {
+            samples_per_pixel: 1,
+        },
+        seed,
+        &|| {},
+    )
+}
+
 /// Analytic planar depth (mm) of the plane z = 0 along the ray through pixel `(x, y)`.
 fn table_depth_mm(cam: &Camera, x: u32, y: u32) -> Option<f64> {
     let (c, d) = (cam.center(), cam.ray_direction(x as f64, y as f64));
@@ -46,15 +59,7 @@ fn table_depth_is_the_analytic_planar_depth_at_every_pixel_centre() {
         DVec3::new(0.0, 0.02, 0.0),
         DVec3::Z,
     );
-    let img = render_view(
-        &scene,
-        &cam,
-        RenderSettings {
-            samples_per_pixel: 1,
-        },
-        1,
-        &|| {},
-    );
+    let img = render_one_sample(&scene, &cam, 1);
     let mut checked = 0;
     for y in 0..120 {
         for x in 0..160 {
@@ -103,15 +108,7 @@ fn sphere_depth_matches_the_ray_sphere_intersection() {
         centre.as_dvec3(),
         DVec3::Z,
     );
-    let img = render_view(
-        &scene,
-        &cam,
-        RenderSettings {
-            samples_per_pixel: 1,
-        },
-        2,
-        &|| {},
-    );
+    let img = render_one_sample(&scene, &cam, 2);
     let (c, s) = (cam.center(), centre.as_dvec3());
     let mut checked = 0;
     for y in 0..120u32 {

@@ -50,23 +50,21 @@ fn ply_vertices(p: &Path) -> Vec<DVec3> {
         .collect()
 }
 
-fn mat(v: &Value) -> DMat3 {
-    let a: Vec<f64> = v
-        .as_array()
+fn numbers(v: &Value) -> Vec<f64> {
+    v.as_array()
         .unwrap()
         .iter()
         .map(|x| x.as_f64().unwrap())
-        .collect();
+        .collect()
+}
+
+fn mat(v: &Value) -> DMat3 {
+    let a = numbers(v);
     DMat3::from_cols_array(&[a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8]])
 }
 
 fn vec3(v: &Value) -> DVec3 {
-    let a: Vec<f64> = v
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
+    let a = numbers(v);
     DVec3::new(a[0], a[1], a[2])
 }
 
