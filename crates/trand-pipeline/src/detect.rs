@@ -187,6 +187,18 @@ mod tests {
 
     /// Object 1 (channel 0) stood at A, object 2 (channel 1) at B. In the new image object 1 is gone and
     /// object 2 lies where object 1 stood (it stood on it and fell), its mask carrying id 2.
+    /// [`fell_into_the_removed_ones_place`] with the new mask's instance 2 relabelled 5, an id that is
+    /// no t=0 object.
+    fn fell_with_unknown_instance_id_5() -> (Surfels, View) {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        for v in &mut view.instance.as_mut().unwrap().data {
+            if *v == 2 {
+                *v = 5;
+            }
+        }
+        (s, view)
+    }
+
     fn fell_into_the_removed_ones_place() -> (Surfels, View) {
         let mut s = cylinder(0.0, 0.0, 0);
         s.append(&cylinder(0.12, 0.04, 1));
@@ -234,12 +246,7 @@ mod tests {
 
     #[test]
     fn forcing_object_ids_on_a_mask_with_unknown_ids_is_an_error_naming_the_id() {
-        let (s, mut view) = fell_into_the_removed_ones_place();
-        for v in &mut view.instance.as_mut().unwrap().data {
-            if *v == 2 {
-                *v = 5;
-            }
-        }
+        let (s, view) = fell_with_unknown_instance_id_5();
         let err = detect(
             &s,
             &[(1, 0), (2, 1)],
@@ -258,12 +265,7 @@ mod tests {
 
     #[test]
     fn ids_that_are_not_t0_objects_are_matched_by_overlap() {
-        let (s, mut view) = fell_into_the_removed_ones_place();
-        for v in &mut view.instance.as_mut().unwrap().data {
-            if *v == 2 {
-                *v = 5;
-            }
-        }
+        let (s, view) = fell_with_unknown_instance_id_5();
         let (m, rule) = detect(
             &s,
             &[(1, 0), (2, 1)],

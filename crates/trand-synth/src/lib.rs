@@ -246,12 +246,8 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
 fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
     let (s, t) = layout.stack;
     let world_z = |i: usize| {
-        layout.objects[i]
-            .model
-            .mesh
-            .positions
-            .iter()
-            .map(|p| rest[i].apply(*p).z)
+        world_points(layout, rest, i)
+            .map(|p| p.z)
             .fold(f32::MAX, f32::min)
     };
     let height = |i: usize| {
@@ -348,6 +344,21 @@ fn settle_stack(
     )
 }
 
+/// The mesh vertices of object `i` at its pose in `rest`, in world coordinates.
+fn world_points<'a>(
+    layout: &'a layout::Layout,
+    rest: &[Pose],
+    i: usize,
+) -> impl Iterator<Item = glam::Vec3> + 'a {
+    let pose = rest[i];
+    layout.objects[i]
+        .model
+        .mesh
+        .positions
+        .iter()
+        .map(move |p| pose.apply(*p))
+}
+
 /// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
 /// degree or two (see [`settle_stack`]); when it came to rest on its support within
 /// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned about its centre to stand exactly
@@ -366,19 +377,11 @@ fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCor
     let fix = glam::Quat::from_rotation_arc(axis_t, up);
     // Untilt about the object's centre (its translation is kept), then slide it along the axis.
     rest[t].rotation = (fix * rest[t].rotation).normalize();
-    let top_of_support = layout.objects[s]
-        .model
-        .mesh
-        .positions
-        .iter()
-        .map(|p| rest[s].apply(*p).dot(up))
+    let top_of_support = world_points(layout, rest, s)
+        .map(|p| p.dot(up))
         .fold(f32::MIN, f32::max);
-    let base_of_top = layout.objects[t]
-        .model
-        .mesh
-        .positions
-        .iter()
-        .map(|p| rest[t].apply(*p).dot(up))
+    let base_of_top = world_points(layout, rest, t)
+        .map(|p| p.dot(up))
         .fold(f32::MAX, f32::min);
     rest[t].translation += (top_of_support + SEAT_GAP_M - base_of_top) * up;
     Some(SeatCorrection {
