@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{LoadOptions, read_sequence_with};
+use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, reconstruct};
 
 #[derive(clap::Args)]
@@ -150,14 +150,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     } else {
         None
     };
-    let seq = read_sequence_with(
-        &a.data,
-        &LoadOptions {
-            object_channels: Some(opts.num_objects),
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("reading {}", a.data.display()))?;
+    let seq = read_sequence(&a.data, opts.num_objects)?;
 
     let cancel = Arc::new(AtomicBool::new(false));
     {
@@ -257,4 +250,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         print!("{}", trand_eval::table(&[("t0", &m)]));
     }
     Ok(())
+}
+
+/// The sequence at `data` with `num_objects` object channels (the run's), errors naming the path.
+pub(crate) fn read_sequence(data: &Path, num_objects: usize) -> anyhow::Result<Sequence> {
+    read_sequence_with(
+        data,
+        &LoadOptions {
+            object_channels: Some(num_objects),
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("reading {}", data.display()))
 }

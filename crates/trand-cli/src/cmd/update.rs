@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{LoadOptions, View, ViewCount, read_sequence_with, select_train_views};
+use trand_io::{View, ViewCount, select_train_views};
 use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
 
@@ -187,14 +187,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
     let surfels = trand_io::read_surfels_ply(&a.run.join("surfels.ply"))?;
 
-    let seq = read_sequence_with(
-        &a.data,
-        &LoadOptions {
-            object_channels: Some(ropts.num_objects),
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("reading {}", a.data.display()))?;
+    let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
     let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
     if run_json["sequence_fingerprint"].as_str() != Some(fp.as_str()) {
         bail!(
