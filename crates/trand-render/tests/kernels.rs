@@ -1,6 +1,6 @@
 //! Properties of the lane kernels: the eight-lane intersection equals the scalar one bit for bit, the
-//! per-row column cut never drops a pixel the alpha gate would pass, and the AVX2 and baseline builds
-//! of the kernels return identical bits.
+//! per-row column cut never drops a pixel the alpha gate would pass, and the AVX-512, AVX2 and baseline
+//! builds of the kernels return identical bits.
 
 mod common;
 
@@ -11,7 +11,9 @@ use trand_render::intersect::{Row, intersect, intersect_lanes, row_columns, tile
 use trand_render::lanes::{M, V};
 use trand_render::preprocess::{Proj, preprocess_one};
 use trand_render::simd::{Dispatch, set_dispatch};
-use trand_render::{GeometryMaps, Maps, OutputGrads, RenderSettings, render};
+use trand_render::{
+    GeometryMaps, Maps, ObjectSumGrads, OutputGrads, RenderSettings, render, render_object_sums,
+};
 
 /// Surfels of every shape the optimiser produces: tiny to large, round to needle-thin, any tilt
 /// (including nearly edge-on), opacity 0.005 to 0.999.
@@ -144,56 +146,91 @@ fn tile_row_columns_equal_the_row_by_row_cut() {
     assert!(rows > 10_000 && empty > 1000, "{rows} rows, {empty} empty");
 }
 
-#[test]
-fn avx2_and_baseline_kernels_return_identical_bits() {
+/// How a test render is made: every map with the dense object map, or a training step's maps (object
+/// sums against a label map, no geometric maps), which the AVX-512 forward build serves.
+#[derive(Clone, Copy, Debug)]
+enum Pass {
+    AllMaps,
+    TrainingStep,
+}
+
+/// Output and gradient bits of one render and backward pass of `s` in the kernel build `d`.
+fn render_bits(s: &Surfels, pass: Pass, d: Dispatch) -> Vec<u32> {
     let camera = common::test_camera(160, 120, 0.9);
-    let s = varied_scene(1500, 5);
-    let settings = RenderSettings {
+    let mut settings = RenderSettings {
         maps: Maps::All,
         background: [0.1, 0.2, 0.3],
         ..Default::default()
     };
-    let run = |d: Dispatch| {
-        set_dispatch(d);
-        let out = render::<f32, _>(&s, &camera, &settings).unwrap();
-        let n = out.alpha.len();
-        let g = OutputGrads {
-            rgb: Some((0..3 * n).map(|i| (i % 7) as f32 * 0.1 - 0.3).collect()),
-            mask: Some(vec![0.2; 3 * n]),
-            objects: Some((0..3 * n).map(|i| (i % 5) as f32 * 0.1 - 0.2).collect()),
-            depth: Some(vec![0.3; n]),
-            median: Some(vec![-0.4; n]),
-            distortion: Some(vec![0.5; n]),
-            ..Default::default()
-        };
-        let grads = out.backward(&s, &g);
-        set_dispatch(Dispatch::Auto);
-        let mut v: Vec<u32> = [
-            &out.rgb,
-            &out.mask,
-            &out.objects,
-            &out.depth,
-            &out.median,
-            &out.distortion,
-        ]
-        .iter()
-        .flat_map(|m| m.iter().map(|x| x.to_bits()))
-        .collect();
-        let p = &grads.params;
-        for m in [
-            p.means.as_flattened(),
-            p.quats.as_flattened(),
-            &p.opacity_logits,
-            &p.sh,
-            &p.obj_logits,
-        ] {
-            v.extend(m.iter().map(|x| x.to_bits()));
+    set_dispatch(d);
+    let out = match pass {
+        Pass::AllMaps => render::<f32, _>(s, &camera, &settings).unwrap(),
+        Pass::TrainingStep => {
+            settings.geometry = GeometryMaps::Skipped;
+            let labels: Vec<u8> = (0..160 * 120).map(|i| ((i / 7) % 3) as u8).collect();
+            render_object_sums::<f32, _>(s, &camera, &settings, &labels).unwrap()
         }
-        v
     };
-    let (auto, base) = (run(Dispatch::Auto), run(Dispatch::Baseline));
-    assert_eq!(auto.len(), base.len());
-    assert!(auto == base, "the AVX2 and baseline kernels differ");
+    let n = out.alpha.len();
+    let mut g = OutputGrads {
+        rgb: Some((0..3 * n).map(|i| (i % 7) as f32 * 0.1 - 0.3).collect()),
+        mask: Some(vec![0.2; 3 * n]),
+        ..Default::default()
+    };
+    match pass {
+        Pass::AllMaps => {
+            g.objects = Some((0..3 * n).map(|i| (i % 5) as f32 * 0.1 - 0.2).collect());
+            g.depth = Some(vec![0.3; n]);
+            g.median = Some(vec![-0.4; n]);
+            g.distortion = Some(vec![0.5; n]);
+        }
+        Pass::TrainingStep => {
+            g.object_sums = Some(ObjectSumGrads {
+                total: vec![0.01, -0.02, 0.03],
+                on_label: vec![-0.1, 0.2, -0.05],
+            });
+        }
+    }
+    let grads = out.backward(s, &g);
+    set_dispatch(Dispatch::Auto);
+    let mut v: Vec<u32> = [
+        &out.rgb,
+        &out.mask,
+        &out.objects,
+        &out.depth,
+        &out.median,
+        &out.distortion,
+    ]
+    .iter()
+    .flat_map(|m| m.iter().map(|x| x.to_bits()))
+    .collect();
+    if let Some(sums) = &out.object_sums {
+        v.extend(sums.total.iter().chain(&sums.on_label).map(|x| x.to_bits()));
+    }
+    let p = &grads.params;
+    for m in [
+        p.means.as_flattened(),
+        p.quats.as_flattened(),
+        &p.opacity_logits,
+        &p.sh,
+        &p.obj_logits,
+    ] {
+        v.extend(m.iter().map(|x| x.to_bits()));
+    }
+    v
+}
+
+#[test]
+fn every_kernel_build_returns_identical_bits() {
+    let s = varied_scene(1500, 5);
+    for pass in [Pass::AllMaps, Pass::TrainingStep] {
+        let base = render_bits(&s, pass, Dispatch::Baseline);
+        for d in [Dispatch::Avx2, Dispatch::Auto] {
+            let v = render_bits(&s, pass, d);
+            assert_eq!(v.len(), base.len());
+            assert!(v == base, "{d:?} and baseline kernels differ ({pass:?})");
+        }
+    }
 }
 
 #[test]
