@@ -199,7 +199,7 @@ pub fn backward_tile<R: Real>(
     // π_ℓ ∂L/∂I_ℓ per label present.
     let sum_grads = grads.object_sums.filter(|_| lay.sums.is_some());
     let tl = match (sum_grads, labels) {
-        (Some(_), Some(l)) => Some(TileLabels::<R>::gather(l, w_img, (tx0, ty0, tx1, ty1))),
+        (Some(_), Some(l)) => Some(TileLabels::gather(l, w_img, (tx0, ty0, tx1, ty1))),
         _ => None,
     };
     let n_lab = tl.as_ref().map_or(0, |t| t.labels.len());
@@ -290,10 +290,10 @@ pub fn backward_tile<R: Real>(
                 }
                 if let Some(tl) = &tl {
                     let mut vo = V::splat(beta);
-                    for ((a, m), &c) in acc_l[..n_lab].iter_mut().zip(&tl.masks).zip(&coef) {
-                        let m = V::load(&m[px.clone()]);
-                        vo += m * c;
-                        *a += w * m;
+                    for ((a, rows), &c) in acc_l[..n_lab].iter_mut().zip(&tl.rows).zip(&coef) {
+                        let on = M::from_bits((rows[ly as usize] >> (half * LANES)) as u8);
+                        vo += select(on, V::splat(c), zv);
+                        *a += select(on, w, zv);
                     }
                     v += vo;
                     acc_w += w;

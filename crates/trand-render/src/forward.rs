@@ -130,7 +130,7 @@ pub fn raster_tile<R: Real>(
 
     // Object sums against labels: per pair Σw and Σw per label present, folded into `sums` (P, I).
     let tl = match (lay.sums, labels) {
-        (Some(_), Some(l)) => Some(TileLabels::<R>::gather(
+        (Some(_), Some(l)) => Some(TileLabels::gather(
             l,
             cam.width as usize,
             (tx0, ty0, tx1, ty1),
@@ -213,8 +213,9 @@ pub fn raster_tile<R: Real>(
                 }
                 if let Some(tl) = &tl {
                     acc_w += w;
-                    for (a, m) in acc_l[..n_lab].iter_mut().zip(&tl.masks) {
-                        *a += w * V::load(&m[px.clone()]);
+                    for (a, rows) in acc_l[..n_lab].iter_mut().zip(&tl.rows) {
+                        let on = M::from_bits((rows[ly as usize] >> (half * LANES)) as u8);
+                        *a += select(on, w, V::splat(z));
                     }
                 }
                 if geometry {

@@ -17,10 +17,7 @@
 //! Per-tile sums go to one extra plane of the tile block ([`crate::layout::Layout::sums`]): `P` in
 //! entries `0..K`, `I` in `K..2K`; the render adds the tiles' planes in tile order.
 
-use trand_core::Real;
-
-use crate::constants::{TILE, TILE_PIXELS};
-use crate::forward::Plane;
+use crate::constants::TILE;
 
 /// The two per-channel sums of the object map (see the module doc).
 #[derive(Clone, Debug, PartialEq)]
@@ -40,33 +37,97 @@ pub struct ObjectSumGrads<R> {
     pub on_label: Vec<R>,
 }
 
-/// The labels present in one tile and a 0/1 plane for each (pixels outside the image belong to none).
-pub struct TileLabels<R> {
+/// The labels present in one tile and, for each, the bit masks of its pixels per tile row (bit `x` of
+/// `rows[k][y]` for local pixel `(x, y)`; pixels outside the image belong to none). The kernels turn a
+/// row's byte into a lane mask and *select* the weight, which is bit for bit the product with a 0/1
+/// plane that this replaced, without the 1 KiB float plane per label and tile.
+pub struct TileLabels {
     pub labels: Vec<u8>,
-    pub masks: Vec<Plane<R>>,
+    pub rows: Vec<[u16; TILE as usize]>,
 }
 
-impl<R: Real> TileLabels<R> {
-    /// Gathers the tile `(x0, y0)..=(x1, y1)` of a row-major label image of width `width`.
+impl TileLabels {
+    /// Gathers the tile `(x0, y0)..=(x1, y1)` of a row-major label image of width `width`, labels in
+    /// order of first appearance (row-major). Per row: one 16-byte comparison per label already seen,
+    /// and a new label only for pixels no seen label covers.
     pub fn gather(labels: &[u8], width: usize, (x0, y0, x1, y1): (i32, i32, i32, i32)) -> Self {
         let mut out = Self {
             labels: Vec::new(),
-            masks: Vec::new(),
+            rows: Vec::new(),
         };
+        let full = ((1u32 << (x1 - x0 + 1)) - 1) as u16;
         for y in y0..=y1 {
-            for x in x0..=x1 {
-                let l = labels[y as usize * width + x as usize];
-                let k = match out.labels.iter().position(|&m| m == l) {
-                    Some(k) => k,
-                    None => {
-                        out.labels.push(l);
-                        out.masks.push([R::ZERO; TILE_PIXELS]);
-                        out.labels.len() - 1
-                    }
-                };
-                out.masks[k][((y - y0) * TILE as i32 + (x - x0)) as usize] = R::ONE;
+            let start = y as usize * width + x0 as usize;
+            let row = &labels[start..start + (x1 - x0 + 1) as usize];
+            let ly = (y - y0) as usize;
+            let mut covered = 0u16;
+            for (k, &l) in out.labels.iter().enumerate() {
+                let bits = equal_bits(row, l);
+                out.rows[k][ly] = bits;
+                covered |= bits;
+            }
+            while covered != full {
+                let first = (!covered & full).trailing_zeros() as usize;
+                let l = row[first];
+                let bits = equal_bits(row, l);
+                let mut rows = [0u16; TILE as usize];
+                rows[ly] = bits;
+                out.labels.push(l);
+                out.rows.push(rows);
+                covered |= bits;
             }
         }
         out
+    }
+}
+
+/// Bit `x` set where `row[x] == l` (at most 16 pixels).
+#[inline]
+fn equal_bits(row: &[u8], l: u8) -> u16 {
+    row.iter()
+        .enumerate()
+        .fold(0u16, |b, (x, &v)| b | (u16::from(v == l) << x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gathered_rows_mark_exactly_the_pixels_of_each_label() {
+        // A 40×20 label image with three labels in stripes and blocks; tiles at the image's edge too.
+        let (w, h) = (40usize, 20usize);
+        let img: Vec<u8> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if x < 5 {
+                    7
+                } else if (x + y) % 3 == 0 {
+                    2
+                } else {
+                    0
+                }
+            })
+            .collect();
+        for (x0, y0) in [(0, 0), (16, 0), (32, 16)] {
+            let (x1, y1) = ((x0 + 15).min(w as i32 - 1), (y0 + 15).min(h as i32 - 1));
+            let t = TileLabels::gather(&img, w, (x0, y0, x1, y1));
+            assert_eq!(t.labels.len(), t.rows.len());
+            let mut seen = t.labels.clone();
+            seen.sort_unstable();
+            seen.dedup();
+            assert_eq!(seen.len(), t.labels.len(), "a label listed twice");
+            for ly in 0..16 {
+                for lx in 0..16 {
+                    let (x, y) = (x0 + lx, y0 + ly);
+                    let inside = x <= x1 && y <= y1;
+                    for (k, &l) in t.labels.iter().enumerate() {
+                        let bit = t.rows[k][ly as usize] >> lx & 1 == 1;
+                        let want = inside && img[y as usize * w + x as usize] == l;
+                        assert_eq!(bit, want, "label {l} at ({x}, {y})");
+                    }
+                }
+            }
+        }
     }
 }
