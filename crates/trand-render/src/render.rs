@@ -470,26 +470,31 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         .map_or(params.sh_degree(), |d| d.min(params.sh_degree()));
     let n = params.len();
 
-    // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it); then the
-    // visible surfels' object probabilities, eight surfels at a time.
+    // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it).
     let projs: Vec<Proj<R>> = (0..n)
         .into_par_iter()
         .with_min_len(256)
         .filter_map(|i| preprocess_one(params, i, &cam, sh_degree))
         .collect();
-    let mut probs = par_zeros(projs.len() * k);
-    probs
-        .par_chunks_mut(LANES * k)
-        .zip(projs.par_chunks(LANES))
-        .with_min_len(32)
-        .for_each(|(out, ps)| softmax_block(params, ps, k, out));
+    // Stage 2, binning, is serial (a radix sort and a scatter); the visible surfels' object
+    // probabilities (eight surfels at a time) need only the preprocess too, so the other threads
+    // compute them meanwhile.
+    let (bins, probs) = rayon::join(
+        || bin(&projs, cam.tiles_x(), cam.tiles_y()),
+        || {
+            let mut probs = par_zeros(projs.len() * k);
+            probs
+                .par_chunks_mut(LANES * k)
+                .zip(projs.par_chunks(LANES))
+                .with_min_len(32)
+                .for_each(|(out, ps)| softmax_block(params, ps, k, out));
+            probs
+        },
+    );
     let mut radii = vec![0.0f32; n];
     for p in &projs {
         radii[p.index as usize] = p.radius;
     }
-
-    // Stage 2: binning.
-    let bins = bin(&projs, cam.tiles_x(), cam.tiles_y());
 
     // Stage 3: per-tile rasterization into tile blocks.
     let lay = match labels {
