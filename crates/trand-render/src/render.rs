@@ -539,12 +539,24 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
                     let x0 = tx * TILE as usize;
                     let nx = (w - x0).min(TILE as usize);
                     let b = &blocks[(ty * tiles_x + tx) * block..(ty * tiles_x + tx + 1) * block];
-                    for c in 0..nch {
-                        let plane = &b[(ch0 + c) * TILE_PIXELS..(ch0 + c + 1) * TILE_PIXELS];
-                        for (ly, src) in plane.chunks_exact(TILE as usize).take(rows).enumerate() {
-                            let row = &mut slab[(ly * w + x0) * nch..(ly * w + x0 + nx) * nch];
-                            for (d, &v) in row.iter_mut().skip(c).step_by(nch).zip(src) {
-                                *d = v;
+                    for ly in 0..rows {
+                        let row = &mut slab[(ly * w + x0) * nch..(ly * w + x0 + nx) * nch];
+                        let src =
+                            |c: usize| &b[(ch0 + c) * TILE_PIXELS + ly * TILE as usize..][..nx];
+                        match nch {
+                            1 => row.copy_from_slice(src(0)),
+                            3 => {
+                                let (r, g, bl) = (src(0), src(1), src(2));
+                                for (x, d) in row.chunks_exact_mut(3).enumerate() {
+                                    d.copy_from_slice(&[r[x], g[x], bl[x]]);
+                                }
+                            }
+                            _ => {
+                                for (x, d) in row.chunks_exact_mut(nch).enumerate() {
+                                    for (c, v) in d.iter_mut().enumerate() {
+                                        *v = src(c)[x];
+                                    }
+                                }
                             }
                         }
                     }
