@@ -243,17 +243,44 @@ fn view_dir<R: Real>(mean: [R; 3], cam: &CamR<R>) -> ([R; 3], R) {
     }
 }
 
+/// What the preprocess VJP needs beyond [`Proj`], kept from the forward pass so that the backward does
+/// not redo the rotation matrix, the scales' exponentials, the conic and the view direction (they were
+/// half of the VJP's cost).
+#[derive(Clone, Copy, Debug)]
+pub struct Retained<R> {
+    /// Rotation matrix of the normalised quaternion `qn`.
+    pub rot: [[R; 3]; 3],
+    pub qn: [R; 4],
+    /// `exp` of the log-scales.
+    pub scale: [R; 2],
+    /// `d` of the 3σ conic box ([`conic_box`]): the denominator of the filter centre.
+    pub conic_d: R,
+    /// View direction `normalize(μ − C)` and the distance `|μ − C|`.
+    pub dir: [R; 3],
+    pub dist: R,
+}
+
 /// Forward preprocess of surfel `i`: `None` when the surfel is culled (behind the near plane,
 /// off-screen, degenerate or non-finite, object logits included). Its object probabilities come from
 /// [`softmax_block`].
-// `!(a > b)` on purpose: NaN fails the test and is culled.
-#[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     p: &P,
     i: usize,
     cam: &CamR<R>,
     sh_degree: u32,
 ) -> Option<Proj<R>> {
+    preprocess_retained(p, i, cam, sh_degree).map(|(proj, _)| proj)
+}
+
+/// [`preprocess_one`] with what its backward needs ([`Retained`]).
+// `!(a > b)` on purpose: NaN fails the test and is culled.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
+pub fn preprocess_retained<R: Real, P: SurfelParams<R>>(
+    p: &P,
+    i: usize,
+    cam: &CamR<R>,
+    sh_degree: u32,
+) -> Option<(Proj<R>, Retained<R>)> {
     let g = geometry(p, i, cam)?;
     if !(g.pv[2] > cam.near) {
         return None;
@@ -277,7 +304,7 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
 
     // 3σ box: binning and filter centre.
     let c2 = R::from_f64(SIGMA_CUTOFF * SIGMA_CUTOFF);
-    let (center, h2, _) = conic_box(g.t_u, g.t_v, g.t_w, c2)?;
+    let (center, h2, conic_d) = conic_box(g.t_u, g.t_v, g.t_w, c2)?;
     let floor = R::from_f64(1e-4);
     let (hx, hy) = (h2[0].max(floor).sqrt(), h2[1].max(floor).sqrt());
     let radius = hx.max(hy).max(R::from_f64(FILTER_RADIUS)).ceil();
@@ -340,7 +367,7 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
 
     // Colours along the view direction.
     let nc = num_coeffs(sh_degree);
-    let (dir, _) = view_dir(p.mean(i), cam);
+    let (dir, dist) = view_dir(p.mean(i), cam);
     let mut y = [R::ZERO; 16];
     basis(sh_degree, dir, &mut y);
     let (rgb, c1) = sh_colour(|k, ch| p.sh(i, k, ch), nc, &y);
@@ -352,7 +379,7 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
     if !rgb.iter().chain(&mask).all(|v| v.is_finite()) {
         return None;
     }
-    Some(Proj {
+    let proj = Proj {
         index: i as u32,
         t_u: g.t_u,
         t_v: g.t_v,
@@ -369,7 +396,16 @@ pub fn preprocess_one<R: Real, P: SurfelParams<R>>(
         clamped: c1 | (c2 << 3),
         normal_sign,
         cut: RowCut::new(g.t_u, g.t_v, g.t_w, center, r2),
-    })
+    };
+    let retained = Retained {
+        rot: g.rot,
+        qn: g.qn,
+        scale: g.scale,
+        conic_d,
+        dir,
+        dist,
+    };
+    Some((proj, retained))
 }
 
 /// Backward of [`preprocess_one`]: accumulates ∂L/∂(raw parameters) of surfel `proj.index` into `out`
@@ -380,21 +416,21 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
     cam: &CamR<R>,
     sh_degree: u32,
     proj: &Proj<R>,
+    geo: &Retained<R>,
     probs: &[R],
     g: &ProjGrad<R>,
     dprobs: &[R],
     out: &mut SurfelGradSlot<'_, R>,
 ) {
     let i = proj.index as usize;
-    let geo = geometry(p, i, cam).expect("visible surfels have valid geometry");
-    let (t_u, t_v, t_w) = (geo.t_u, geo.t_v, geo.t_w);
+    let (t_u, t_v, t_w) = (proj.t_u, proj.t_v, proj.t_w);
     let mut d_tu = [g.t[0], g.t[1], g.t[2]];
     let mut d_tv = [g.t[3], g.t[4], g.t[5]];
     let mut d_tw = [g.t[6], g.t[7], g.t[8]];
 
     // Filter centre (3σ box centre) → T.
     let c2 = R::from_f64(SIGMA_CUTOFF * SIGMA_CUTOFF);
-    let (center, _, d) = conic_box(t_u, t_v, t_w, c2).expect("visible surfels have a bounded box");
+    let (center, d) = (proj.center, geo.conic_d);
     let tt = [c2, c2, -R::ONE];
     let (gx, gy) = (g.center[0], g.center[1]);
     let two = R::from_f64(2.0);
@@ -432,7 +468,7 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
 
     // Colours: SH coefficients and the view-direction term.
     let nc = num_coeffs(sh_degree);
-    let (dir, dist) = view_dir(p.mean(i), cam);
+    let (dir, dist) = (geo.dir, geo.dist);
     let mut y = [R::ZERO; 16];
     basis(sh_degree, dir, &mut y);
     let mut jac = [[R::ZERO; 3]; 16];

@@ -12,7 +12,7 @@ use crate::lanes::LANES;
 use crate::layout::{INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams, par_zeros};
 use crate::preprocess::{
-    Proj, SurfelGradSlot, preprocess_backward_one, preprocess_one, softmax_block,
+    Proj, Retained, SurfelGradSlot, preprocess_backward_one, preprocess_retained, softmax_block,
 };
 use crate::simd::{backward_tile, raster_tile};
 
@@ -141,6 +141,8 @@ struct Saved<R> {
     sh_degree: u32,
     lay: Layout,
     projs: Vec<Proj<R>>,
+    /// What the preprocess VJP needs beyond `projs` (same order).
+    retained: Vec<Retained<R>>,
     probs: Vec<R>,
     bins: Bins,
     blocks: Vec<R>,
@@ -332,7 +334,17 @@ impl<R: Real> Rendered<R> {
                     mask_sh,
                     obj_logits,
                 };
-                preprocess_backward_one(params, &s.cam, sh_deg, proj, probs, &g, dprobs, &mut slot);
+                preprocess_backward_one(
+                    params,
+                    &s.cam,
+                    sh_deg,
+                    proj,
+                    &s.retained[j],
+                    probs,
+                    &g,
+                    dprobs,
+                    &mut slot,
+                );
                 let z = proj.t_w[2];
                 let half = R::from_f64(0.5);
                 dens[0] = g.t[2] * z * R::from_f64(s.cam.width as f64) * half;
@@ -471,11 +483,11 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     let n = params.len();
 
     // Stage 1: preprocess, in parallel, kept in surfel order (rayon's collect keeps it).
-    let projs: Vec<Proj<R>> = (0..n)
+    let (projs, retained): (Vec<Proj<R>>, Vec<Retained<R>>) = (0..n)
         .into_par_iter()
         .with_min_len(256)
-        .filter_map(|i| preprocess_one(params, i, &cam, sh_degree))
-        .collect();
+        .filter_map(|i| preprocess_retained(params, i, &cam, sh_degree))
+        .unzip();
     // Stage 2, binning, is serial (a radix sort and a scatter); the visible surfels' object
     // probabilities (eight surfels at a time) need only the preprocess too, so the other threads
     // compute them meanwhile.
@@ -627,6 +639,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             sh_degree,
             lay,
             projs,
+            retained,
             probs,
             bins,
             blocks,
