@@ -12,8 +12,8 @@
 //! 6. [`preprocess::preprocess_backward_one`]: chain rule to the raw parameters (quaternion
 //!    normalisation, SH view direction, exp/sigmoid/softmax activations).
 //!
-//! The tile kernels (3, 4) run on eight-pixel lanes ([`lanes`]) and are compiled twice, for AVX2 and
-//! for the baseline target, chosen at run time ([`simd`]); both give identical bits.
+//! The tile kernels (3, 4) run on eight-pixel lanes ([`lanes`]) and are compiled three times, for
+//! AVX-512, AVX2 and the baseline target, chosen at run time ([`simd`]); all give identical bits.
 //!
 //! Everything is generic over [`trand_core::Real`]: `f32` in production, `f64` in the finite-difference
 //! tests, from one source. Entry points: [`render`] and [`Rendered::backward`].

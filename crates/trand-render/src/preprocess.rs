@@ -253,7 +253,7 @@ pub struct Retained<R> {
     pub qn: [R; 4],
     /// `exp` of the log-scales.
     pub scale: [R; 2],
-    /// `d` of the 3σ conic box ([`conic_box`]): the denominator of the filter centre.
+    /// `d` of the 3σ conic box (`conic_box`): the denominator of the filter centre.
     pub conic_d: R,
     /// View direction `normalize(μ − C)` and the distance `|μ − C|`.
     pub dir: [R; 3],
