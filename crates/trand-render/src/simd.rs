@@ -154,15 +154,16 @@ fn cpu_isa() -> Isa {
 }
 
 macro_rules! dispatch {
-    ($(#[$doc:meta])* $name:ident, $avx2:ident, $avx512:ident, $imp:path,
+    ($(#[$doc:meta])* $name:ident, $avx2:ident, $avx512:ident, $imp:path, isa = $isa:expr,
      ($($arg:ident: $ty:ty),* $(,)?)) => {
         $(#[$doc])*
         #[allow(clippy::too_many_arguments)]
-        fn $name<R: Real>(isa: Isa, $($arg: $ty),*) {
+        pub fn $name<R: Real>($($arg: $ty),*) {
+            let isa: Isa = $isa;
             #[cfg(target_arch = "x86_64")]
             match isa {
-                // SAFETY: `isa` never exceeds `cpu_isa()` (see `isa()` and the callers' `min`), so the
-                // CPU has every feature the called function enables.
+                // SAFETY: `isa` never exceeds `cpu_isa()` (see `isa()`; the callers only lower it), so
+                // the CPU has every feature the called function enables.
                 Isa::Avx512 => return unsafe { $avx512($($arg),*) },
                 // SAFETY: as above.
                 Isa::Avx2 => return unsafe { $avx2($($arg),*) },
@@ -190,76 +191,18 @@ macro_rules! dispatch {
 }
 
 dispatch!(
-    /// Stage 3 for tile `t` in the build `isa`.
-    raster_tile_in, raster_tile_avx2, raster_tile_avx512, crate::forward::raster_tile,
+    /// Stage 3 for tile `t`: see [`crate::forward::raster_tile`]. AVX-512 at most when the layout has
+    /// no dense object planes (see the module doc).
+    raster_tile, raster_tile_avx2, raster_tile_avx512, crate::forward::raster_tile,
+    isa = if lay.has_objects { isa().min(Isa::Avx2) } else { isa() },
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
      labels: Option<&[u8]>, buf: &mut [R], ibuf: &mut [u32], rows: &mut [u16])
 );
 
 dispatch!(
-    /// Stage 4 for tile `t` in the build `isa`.
-    backward_tile_in, backward_tile_avx2, backward_tile_avx512, crate::backward::backward_tile,
+    /// Stage 4 for tile `t`: see [`crate::backward::backward_tile`].
+    backward_tile, backward_tile_avx2, backward_tile_avx512, crate::backward::backward_tile,
+    isa = isa(),
     (t: usize, bins: &Bins, projs: &[Proj<R>], probs: &[R], lay: &Layout, cam: &CamR<R>, background: [R; 3],
      buf: &[R], ibuf: &[u32], rows: &[u16], labels: Option<&[u8]>, grads: &GradMaps<'_, R>, pairs: &mut [R])
 );
-
-/// Stage 3 for tile `t`: see [`crate::forward::raster_tile`]. AVX-512 at most when the layout has no
-/// dense object planes (see the module doc).
-#[allow(clippy::too_many_arguments)]
-pub fn raster_tile<R: Real>(
-    t: usize,
-    bins: &Bins,
-    projs: &[Proj<R>],
-    probs: &[R],
-    lay: &Layout,
-    cam: &CamR<R>,
-    background: [R; 3],
-    labels: Option<&[u8]>,
-    buf: &mut [R],
-    ibuf: &mut [u32],
-    rows: &mut [u16],
-) {
-    let isa = if lay.has_objects {
-        isa().min(Isa::Avx2)
-    } else {
-        isa()
-    };
-    raster_tile_in(
-        isa, t, bins, projs, probs, lay, cam, background, labels, buf, ibuf, rows,
-    )
-}
-
-/// Stage 4 for tile `t`: see [`crate::backward::backward_tile`].
-#[allow(clippy::too_many_arguments)]
-pub fn backward_tile<R: Real>(
-    t: usize,
-    bins: &Bins,
-    projs: &[Proj<R>],
-    probs: &[R],
-    lay: &Layout,
-    cam: &CamR<R>,
-    background: [R; 3],
-    buf: &[R],
-    ibuf: &[u32],
-    rows: &[u16],
-    labels: Option<&[u8]>,
-    grads: &GradMaps<'_, R>,
-    pairs: &mut [R],
-) {
-    backward_tile_in(
-        isa(),
-        t,
-        bins,
-        projs,
-        probs,
-        lay,
-        cam,
-        background,
-        buf,
-        ibuf,
-        rows,
-        labels,
-        grads,
-        pairs,
-    )
-}
