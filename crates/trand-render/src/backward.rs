@@ -227,7 +227,7 @@ pub fn backward_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let row = Row::at(&basis, p, yr);
+            let row = Row::at(&basis, yr);
             for (half, &xr) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;
                 if hb == 0 {

@@ -172,7 +172,7 @@ pub fn raster_tile<R: Real>(
                 continue;
             }
             let yr = R::from_f64((ty0 + ly) as f64);
-            let row = Row::at(&basis, p, yr);
+            let row = Row::at(&basis, yr);
             let mut blended = 0u16;
             for (half, &xh) in xs.iter().enumerate() {
                 let hb = (bits >> (half * LANES)) as u8;

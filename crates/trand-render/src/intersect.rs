@@ -30,7 +30,6 @@ pub struct Hit<R> {
 #[derive(Clone, Copy, Debug)]
 pub struct Row<R> {
     pub y: R,
-    pub l: [R; 3],
     a: [R; 3],
     b: [R; 3],
 }
@@ -71,16 +70,14 @@ impl<R: Real> Row<R> {
     /// Row `y` of surfel `p` (see [`Row::at`] for the per-pair form the kernels use).
     #[inline(always)]
     pub fn new(p: &Proj<R>, y: R) -> Self {
-        Self::at(&RowBasis::new(p), p, y)
+        Self::at(&RowBasis::new(p), y)
     }
 
     /// Row `y` from the surfel's [`RowBasis`].
     #[inline(always)]
-    pub fn at(basis: &RowBasis<R>, p: &Proj<R>, y: R) -> Self {
-        let (tv, tw) = (&p.t_v, &p.t_w);
+    pub fn at(basis: &RowBasis<R>, y: R) -> Self {
         Self {
             y,
-            l: [y * tw[0] - tv[0], y * tw[1] - tv[1], y * tw[2] - tv[2]],
             a: basis.a,
             b: [
                 y * basis.b1[0] - basis.b0[0],
