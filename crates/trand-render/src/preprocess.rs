@@ -50,7 +50,7 @@ pub struct Proj<R> {
     pub depth: R,
     /// Binning radius in pixels (the reference's `radii`, used by densification).
     pub radius: f32,
-    /// Tile rectangle `[x0, y0, x1, y1)`.
+    /// Tile rectangle `[x0, y0, x1, y1)`: the tiles of the 3σ box that the evaluation box `bbox` touches.
     pub tiles: [u32; 4],
     /// Pixel evaluation box `[x0, y0, x1, y1]`, inclusive.
     pub bbox: [i32; 4],
@@ -364,6 +364,17 @@ pub fn preprocess_retained<R: Real, P: SurfelParams<R>>(
     if bbox[0] > bbox[2] || bbox[1] > bbox[3] {
         return None;
     }
+    // Bin only into the tiles the evaluation box touches: in the others every pixel fails the α gate,
+    // so their pairs would change no output or gradient, only cost binning, sorting and kernel work.
+    // For the low opacities of transparent objects the box is often much smaller than the 3σ box
+    // (`√(2 ln(255 o))` instead of 3 standard deviations), which still sets `radius` and visibility.
+    let t32 = TILE as i32;
+    let tiles = [
+        (bbox[0] / t32) as u32,
+        (bbox[1] / t32) as u32,
+        (bbox[2] / t32 + 1) as u32,
+        (bbox[3] / t32 + 1) as u32,
+    ];
 
     // Colours along the view direction.
     let nc = num_coeffs(sh_degree);
