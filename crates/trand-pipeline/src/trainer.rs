@@ -122,12 +122,35 @@ impl<'a> Trainer<'a> {
             },
         };
         // The Dice loss reads the object map only through two sums per channel: rendered against the
-        // target labels, without the K-channel map (trand_render::labels).
-        let out = if object_aware {
-            render_object_sums::<f32, _>(&self.surfels, &view.camera, &settings, &view.labels)?
-        } else {
-            render::<f32, _>(&self.surfels, &view.camera, &settings)?
-        };
+        // target labels, without the K-channel map (trand_render::labels). The object-aware 3D loss
+        // depends on the positions and logits alone, so it runs alongside the render: its per-object
+        // work (five or so objects on two cores) leaves gaps that the render's tiles fill.
+        let object_loss_on = object_aware && !last && cfg.object_loss.active.is_active(it);
+        let (out, ol) = rayon::join(
+            || {
+                if object_aware {
+                    render_object_sums::<f32, _>(
+                        &self.surfels,
+                        &view.camera,
+                        &settings,
+                        &view.labels,
+                    )
+                } else {
+                    render::<f32, _>(&self.surfels, &view.camera, &settings)
+                }
+            },
+            || {
+                object_loss_on.then(|| {
+                    object_aware_loss(
+                        &self.surfels.means,
+                        &self.surfels.obj_logits,
+                        k,
+                        &cfg.object_loss.params,
+                    )
+                })
+            },
+        );
+        let out = out?;
         let (w, h) = (view.width, view.height);
         let il = &cfg.image_loss;
         let lam = il.lambda_dssim as f32;
@@ -139,12 +162,15 @@ impl<'a> Trainer<'a> {
         };
 
         let rgb_w = if object_aware { il.rgb as f32 } else { 1.0 };
-        let p = photometric(&out.rgb, &view.rgb, w, h, 3, lam);
+        // The two photometric losses are independent: run together, each fills the other's gaps.
+        let (p, pm) = rayon::join(
+            || photometric(&out.rgb, &view.rgb, w, h, 3, lam),
+            || object_aware.then(|| photometric(&out.mask, &view.mask, w, h, 3, lam)),
+        );
         rep.rgb = p.value;
         g.rgb = Some(p.grad.into_iter().map(|v| v * rgb_w).collect());
         let mut loss = rgb_w * p.value;
-        if object_aware {
-            let pm = photometric(&out.mask, &view.mask, w, h, 3, lam);
+        if let Some(pm) = pm {
             rep.mask = pm.value;
             loss += il.mask as f32 * pm.value;
             g.mask = Some(pm.grad.into_iter().map(|v| v * il.mask as f32).collect());
@@ -196,13 +222,7 @@ impl<'a> Trainer<'a> {
         let grads = out.backward(&self.surfels, &g);
         let mut gs = self.surfels.zeros_like();
         grads.params.write_into(&mut gs);
-        if object_aware && cfg.object_loss.active.is_active(it) {
-            let ol = object_aware_loss(
-                &self.surfels.means,
-                &self.surfels.obj_logits,
-                k,
-                &cfg.object_loss.params,
-            );
+        if let Some(ol) = ol {
             let wgt = cfg.object_loss.weight as f32;
             rep.object = ol.value;
             rep.loss += wgt * ol.value;
