@@ -220,8 +220,7 @@ impl<'a> Trainer<'a> {
         }
 
         let grads = out.backward(&self.surfels, &g);
-        let mut gs = self.surfels.zeros_like();
-        grads.params.write_into(&mut gs);
+        let mut gs = grads.params.into_surfels(&self.surfels);
         if let Some(ol) = ol {
             let wgt = cfg.object_loss.weight as f32;
             rep.object = ol.value;
@@ -234,8 +233,7 @@ impl<'a> Trainer<'a> {
         }
         let d = &cfg.densify;
         if it < d.until_iteration {
-            let dens: Vec<[f32; 2]> = grads.densify.clone();
-            self.stats.add(&out.radii, &dens);
+            self.stats.add(&out.radii, &grads.densify);
         }
         let densify = d.densify_now(it);
         let reset = d.reset_opacity_now(it);

@@ -160,6 +160,52 @@ impl<R: Real> ParamsOf<R> {
     }
 }
 
+impl ParamsOf<f32> {
+    /// The values as [`Surfels`] shaped like `like` (e.g. gradients for the optimiser), moving the
+    /// arrays whose layouts agree instead of copying them: [`ParamsOf::write_into`] into a
+    /// [`Surfels::zeros_like`] cost ~1.3 ms per training step at 55 k surfels.
+    pub fn into_surfels(self, like: &Surfels) -> Surfels {
+        let n = self.means.len();
+        assert_eq!(like.len(), n, "surfel count");
+        let nc = num_coeffs(self.sh_degree);
+        let rs = like.rest_stride();
+        if self.num_objects != like.num_objects || (nc - 1) * 3 != rs {
+            let mut s = like.zeros_like();
+            self.write_into(&mut s);
+            return s;
+        }
+        let split = |sh: Vec<f32>| -> (Vec<[f32; 3]>, Vec<f32>) {
+            if nc == 1 {
+                return (sh.as_chunks::<3>().0.to_vec(), Vec::new());
+            }
+            let dc = sh
+                .chunks_exact(nc * 3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect();
+            let rest = sh
+                .chunks_exact(nc * 3)
+                .flat_map(|c| c[3..].iter().copied())
+                .collect();
+            (dc, rest)
+        };
+        let (sh_dc, sh_rest) = split(self.sh);
+        let (mask_dc, mask_rest) = split(self.mask_sh);
+        Surfels {
+            sh_degree: like.sh_degree,
+            num_objects: like.num_objects,
+            means: self.means,
+            log_scales: self.log_scales,
+            quats: self.quats,
+            opacity_logits: self.opacity_logits,
+            sh_dc,
+            sh_rest,
+            mask_dc,
+            mask_rest,
+            obj_logits: self.obj_logits,
+        }
+    }
+}
+
 impl<R: Real> SurfelParams<R> for ParamsOf<R> {
     fn len(&self) -> usize {
         self.means.len()
@@ -202,4 +248,53 @@ pub(crate) fn par_zeros<T: Default + Copy + Send + Sync>(len: usize) -> Vec<T> {
         .with_min_len(1 << 14)
         .collect_into_vec(&mut v);
     v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A surfel set of SH degree `deg` with every parameter distinct (and rest coefficients set).
+    fn numbered(deg: u32, n: usize, k: usize) -> Surfels {
+        let mut s = Surfels::new(deg, k).expect("shape");
+        for i in 0..n {
+            s.push(&trand_core::surfels::Surfel {
+                mean: [i as f32, 0.5, 1.0],
+                log_scale: [-(i as f32), 0.25],
+                quat: [1.0, i as f32, 0.0, 0.5],
+                opacity_logit: 0.1 * i as f32,
+                sh_dc: [i as f32 + 0.1, 0.2, 0.3],
+                mask_dc: [0.4, i as f32 + 0.5, 0.6],
+                obj_logits: (0..k).map(|c| (i * k + c) as f32).collect(),
+            });
+        }
+        for (j, v) in s.sh_rest.iter_mut().enumerate() {
+            *v = 100.0 + j as f32;
+        }
+        for (j, v) in s.mask_rest.iter_mut().enumerate() {
+            *v = -100.0 - j as f32;
+        }
+        s
+    }
+
+    #[test]
+    fn into_surfels_equals_write_into_for_every_sh_degree_and_shape() {
+        for deg in 0..=3 {
+            let s = numbered(deg, 5, 4);
+            let p = ParamsOf::<f32>::from_surfels(&s);
+            let mut want = s.zeros_like();
+            p.write_into(&mut want);
+            assert_eq!(p.clone().into_surfels(&s), want, "degree {deg}");
+            assert_eq!(want, s, "degree {deg}: round trip");
+            // A target of another degree takes the general path.
+            let other = numbered((deg + 1) % 4, 5, 4);
+            let mut want = other.zeros_like();
+            p.write_into(&mut want);
+            assert_eq!(
+                p.into_surfels(&other),
+                want,
+                "degree {deg} into another degree"
+            );
+        }
+    }
 }

@@ -1,4 +1,5 @@
-//! Wall-clock timing of the image losses at 640×480: `cargo run --release -p trand-train --example loss_timing`.
+//! Wall-clock timing of the image losses at 640×480 (`TRAND_HALF=1`: 320×240, the `--downsample 2`
+//! training size): `cargo run --release -p trand-train --example loss_timing [FILTER]`.
 
 use std::time::Instant;
 
@@ -39,16 +40,22 @@ fn time<T>(label: &str, reps: usize, mut f: impl FnMut() -> T) {
 }
 
 fn main() {
-    let (w, h) = (640usize, 480usize);
+    let (w, h) = if std::env::var_os("TRAND_HALF").is_some() {
+        (320usize, 240usize)
+    } else {
+        (640, 480)
+    };
     let mut rng = Pcg64::seed_from_u64(0);
     let x: Vec<f32> = (0..w * h * 3).map(|_| rng.random::<f32>()).collect();
     let y: Vec<f32> = (0..w * h * 3).map(|_| rng.random::<f32>()).collect();
     println!("rayon threads: {}", rayon::current_num_threads());
-    time("l1 640x480x3 (fwd+bwd)", 50, || photometric::l1(&x, &y));
-    time("ssim 640x480x3 (fwd+bwd)", 50, || {
+    time(&format!("l1 {w}x{h}x3 (fwd+bwd)"), 50, || {
+        photometric::l1(&x, &y)
+    });
+    time(&format!("ssim {w}x{h}x3 (fwd+bwd)"), 50, || {
         photometric::ssim(&x, &y, w, h, 3)
     });
-    time("photometric 640x480x3 (fwd+bwd)", 50, || {
+    time(&format!("photometric {w}x{h}x3 (fwd+bwd)"), 50, || {
         photometric::photometric(&x, &y, w, h, 3, 0.2)
     });
     let k = 15;
@@ -56,7 +63,9 @@ fn main() {
     let t: Vec<f32> = (0..w * h * k)
         .map(|i| if i % k == 0 { 1.0 } else { 0.0 })
         .collect();
-    time("dice 640x480x15 (fwd+bwd)", 50, || dice::dice(&p, &t, k));
+    time(&format!("dice {w}x{h}x15 (fwd+bwd)"), 50, || {
+        dice::dice(&p, &t, k)
+    });
 
     // TRAN-D-sized scene: 100k surfels, 10 objects of 6k members each, the rest background/unassigned.
     let n = 100_000;
