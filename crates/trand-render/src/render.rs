@@ -465,6 +465,15 @@ pub fn render_object_sums<R: Real, P: SurfelParams<R>>(
     render_impl(params, camera, settings, Some(labels))
 }
 
+/// The chunks' elements in order, in one vector of exactly their total length.
+fn concat<T>(chunks: Vec<Vec<T>>) -> Vec<T> {
+    let mut out = Vec::with_capacity(chunks.iter().map(Vec::len).sum());
+    for c in chunks {
+        out.extend(c);
+    }
+    out
+}
+
 fn render_impl<R: Real, P: SurfelParams<R>>(
     params: &P,
     camera: &Camera,
@@ -504,25 +513,26 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             (ps, rs)
         })
         .collect();
-    let visible = chunks.iter().map(|c| c.0.len()).sum();
-    let (mut projs, mut retained) = (Vec::with_capacity(visible), Vec::with_capacity(visible));
-    for (ps, rs) in chunks {
-        projs.extend(ps);
-        retained.extend(rs);
-    }
+    let (proj_chunks, retained_chunks): (Vec<_>, Vec<_>) = chunks.into_iter().unzip();
+    let projs = concat(proj_chunks);
     // Stage 2, binning, is serial (a radix sort and a scatter); the visible surfels' object
-    // probabilities (eight surfels at a time) need only the preprocess too, so the other threads
-    // compute them meanwhile.
-    let (bins, probs) = rayon::join(
+    // probabilities (eight surfels at a time) and the joining of the retained values (for the
+    // backward) need only the preprocess too, so the other threads do them meanwhile.
+    let (bins, (probs, retained)) = rayon::join(
         || bin(&projs, cam.tiles_x(), cam.tiles_y()),
         || {
-            let mut probs = par_zeros(projs.len() * k);
-            probs
-                .par_chunks_mut(LANES * k)
-                .zip(projs.par_chunks(LANES))
-                .with_min_len(32)
-                .for_each(|(out, ps)| softmax_block(params, ps, k, out));
-            probs
+            rayon::join(
+                || {
+                    let mut probs = par_zeros(projs.len() * k);
+                    probs
+                        .par_chunks_mut(LANES * k)
+                        .zip(projs.par_chunks(LANES))
+                        .with_min_len(32)
+                        .for_each(|(out, ps)| softmax_block(params, ps, k, out));
+                    probs
+                },
+                || concat(retained_chunks),
+            )
         },
     );
     let mut radii = vec![0.0f32; n];
