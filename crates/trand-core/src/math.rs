@@ -42,6 +42,36 @@ pub fn softmax<R: Real>(logits: &[R], out: &mut [R]) {
     }
 }
 
+/// Softmax of eight rows at once, up to the division: `x[c][l]` (logit `c` of row `l`, channel-major
+/// lanes) becomes `exp(x[c][l] − max_c x[c][l])` by [`Real::fast_exp8`] (its arguments are ≤ 0, the
+/// range it is made for), and the per-row sums of those numerators, added in channel order, come back.
+/// Row `l`'s probabilities are `x[c][l] / sum[l]`: each row gets the same operations in the same order
+/// as a scalar softmax, whatever its neighbours in the block. The rasterizer's object probabilities and
+/// the object-aware loss's membership both use it, so a surfel is a member exactly when its rendered
+/// probability says so.
+#[inline]
+pub fn softmax_numerators8<R: Real>(x: &mut [[R; 8]]) -> [R; 8] {
+    let Some((first, rest)) = x.split_first() else {
+        return [R::ZERO; 8];
+    };
+    let mut m = *first;
+    for xc in rest {
+        for l in 0..8 {
+            if xc[l] > m[l] {
+                m[l] = xc[l];
+            }
+        }
+    }
+    let mut s = [R::ZERO; 8];
+    for xc in x.iter_mut() {
+        *xc = R::fast_exp8(std::array::from_fn(|l| xc[l] - m[l]));
+        for l in 0..8 {
+            s[l] += xc[l];
+        }
+    }
+    s
+}
+
 /// VJP of softmax: given `p = softmax(l)` and `g = dL/dp`, returns `dL/dl_k = p_k (g_k - Σ_j p_j g_j)`.
 pub fn softmax_vjp<R: Real>(p: &[R], g: &[R], out: &mut [R]) {
     let mut dot = R::ZERO;

@@ -22,7 +22,7 @@
 
 use trand_core::{
     Real,
-    math::{normalize_vjp, quat_to_rotmat, rotmat_vjp, sigmoid, softmax_vjp},
+    math::{normalize_vjp, quat_to_rotmat, rotmat_vjp, sigmoid, softmax_numerators8, softmax_vjp},
     sh::{basis, basis_jacobian, num_coeffs},
 };
 
@@ -577,29 +577,14 @@ pub fn softmax_block<R: Real, P: SurfelParams<R>>(
     const L: usize = crate::lanes::LANES;
     let n = ps.len().min(L);
     let mut x = [[R::ZERO; L]; crate::MAX_OBJECTS];
-    let mut m = [R::ZERO; L];
     for (l, p) in ps.iter().take(n).enumerate() {
         let i = p.index as usize;
-        m[l] = params.obj_logit(i, 0);
         for (c, xc) in x.iter_mut().enumerate().take(k) {
-            let v = params.obj_logit(i, c);
-            xc[l] = v;
-            if v > m[l] {
-                m[l] = v;
-            }
+            xc[l] = params.obj_logit(i, c);
         }
     }
-    let mut s = [R::ZERO; L];
-    for xc in x.iter_mut().take(k) {
-        let mut d = [R::ZERO; L];
-        for l in 0..L {
-            d[l] = xc[l] - m[l];
-        }
-        *xc = R::fast_exp8(d);
-        for l in 0..L {
-            s[l] += xc[l];
-        }
-    }
+    let x = &mut x[..k];
+    let s = softmax_numerators8(x);
     for l in 0..n {
         let inv = R::ONE / s[l];
         for (c, xc) in x.iter().enumerate().take(k) {

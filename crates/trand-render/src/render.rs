@@ -498,7 +498,8 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     // its own length (no growth), then they are joined once: rayon's `filter_map(..).unzip()` grew its
     // vectors by reallocation and appended them again, ~35 MB of copies per training step at 55 k
     // surfels (callgrind).
-    let chunks: Vec<(Vec<Proj<R>>, Vec<Retained<R>>)> = (0..n.div_ceil(PREPROCESS_CHUNK))
+    let (proj_chunks, retained_chunks): (Vec<Vec<_>>, Vec<Vec<_>>) = (0..n
+        .div_ceil(PREPROCESS_CHUNK))
         .into_par_iter()
         .map(|c| {
             let range = c * PREPROCESS_CHUNK..((c + 1) * PREPROCESS_CHUNK).min(n);
@@ -512,8 +513,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             }
             (ps, rs)
         })
-        .collect();
-    let (proj_chunks, retained_chunks): (Vec<_>, Vec<_>) = chunks.into_iter().unzip();
+        .unzip();
     let projs = concat(proj_chunks);
     // Stage 2, binning, is serial (a radix sort and a scatter); the visible surfels' object
     // probabilities (eight surfels at a time) and the joining of the retained values (for the

@@ -35,6 +35,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use trand_core::Real;
+use trand_core::math::softmax_numerators8;
 
 /// One level of the loss: `centres` FPS samples (G), each with `neighbours` nearest members (K).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -141,9 +142,8 @@ const MEMBER_LANES: usize = 8;
 /// Members of every channel (index = channel; channel 0, the background, included) by softmax
 /// probability `> threshold`, in storage order.
 ///
-/// The softmax is the rasterizer's (`trand_render::preprocess::softmax_block`): eight surfels at once,
-/// one per lane, `exp(l − max l)` by [`Real::fast_exp8`], channel sums in channel order, so a visible
-/// surfel is a member exactly when its rendered probability exceeds the threshold. With the scalar
+/// The softmax is the rasterizer's ([`softmax_numerators8`]): eight surfels at once, one per lane, so
+/// a visible surfel is a member exactly when its rendered probability exceeds the threshold. With the scalar
 /// `exp` of the standard library and one surfel at a time, this was a third of the loss's selection
 /// (15 exponentials for each of ~50 k surfels, every iteration).
 pub fn object_members<R: Real>(
@@ -193,8 +193,8 @@ fn block_owners<R: Real>(
     owner: &mut [u16],
 ) {
     const L: usize = MEMBER_LANES;
-    // Channel-major lanes (`e[c][l]` = logit c of surfel l; missing surfels 0), then in place
-    // `exp(l − max l)`.
+    // Channel-major lanes (`e[c][l]` = logit c of surfel l; missing surfels 0), then in place the
+    // softmax numerators.
     for (l, logits) in block.chunks_exact(k).enumerate() {
         for (c, &v) in logits.iter().enumerate() {
             e[c][l] = v;
@@ -203,19 +203,7 @@ fn block_owners<R: Real>(
     for ec in e.iter_mut() {
         ec[owner.len()..].fill(R::ZERO);
     }
-    let mut m = e[0];
-    for ec in e.iter().skip(1) {
-        for l in 0..L {
-            m[l] = if ec[l] > m[l] { ec[l] } else { m[l] };
-        }
-    }
-    let mut s = [R::ZERO; L];
-    for ec in e.iter_mut() {
-        *ec = R::fast_exp8(std::array::from_fn(|l| ec[l] - m[l]));
-        for l in 0..L {
-            s[l] += ec[l];
-        }
-    }
+    let s = softmax_numerators8(e);
     let inv: [R; L] = std::array::from_fn(|l| R::ONE / s[l]);
     let mut own = [0i32; L];
     for (c, ec) in e.iter().enumerate() {

@@ -290,8 +290,7 @@ pub fn ssim<R: Real>(
                 ob[i] = -inv_n * s * inv_b2;
                 oc[i] = inv_n * two * a1 * inv_b;
             }
-            let sum = exx.iter().fold(R::ZERO, |acc, &s| acc + s);
-            sum
+            exx.iter().fold(R::ZERO, |acc, &s| acc + s)
         })
         .collect();
     let mean = row_sums.into_iter().fold(R::ZERO, |acc, s| acc + s) * inv_n;
