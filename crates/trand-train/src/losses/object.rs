@@ -156,7 +156,9 @@ pub fn object_members<R: Real>(
         "membership threshold {threshold} < 0.5 would make membership ambiguous"
     );
     let k = num_objects;
-    assert!(k > 0, "no object channels");
+    if k == 0 {
+        return Vec::new();
+    }
     assert_eq!(obj_logits.len() % k, 0, "object logits length");
     let thr = R::from_f64(threshold);
     // Channel + 1 of the surfel's owner, 0 for none.
