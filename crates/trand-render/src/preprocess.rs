@@ -560,11 +560,10 @@ impl<R: Real> ParamsOf<R> {
     }
 }
 
-/// Softmax of the object logits of up to eight visible surfels `ps` at once, one surfel per lane, with
-/// [`Real::fast_exp8`] (its arguments `l − max l` are ≤ 0, the range it is made for), into `out`
-/// (`ps.len() × k`, surfel-major). Per surfel the same operations in the same order as a scalar softmax
-/// (channel sums in channel order), so the result does not depend on a surfel's neighbours in the
-/// block. The logits are finite ([`preprocess_one`] culls the rest), so every sum is ≥ 1. One surfel at
+/// Softmax of the object logits of up to eight visible surfels `ps` at once, one surfel per lane
+/// ([`softmax_numerators8`]: per surfel the same operations in the same order as a scalar softmax, so
+/// the result does not depend on a surfel's neighbours in the block), into `out` (`ps.len() × k`,
+/// surfel-major). The logits are finite ([`preprocess_one`] culls the rest), so every sum is ≥ 1. One surfel at
 /// a time, the per-lane bookkeeping of fifteen channels cost ~600 instructions per surfel, a fifth of
 /// the preprocess; across surfels the exponentials fill all lanes. The backward ([`softmax_vjp`]) is
 /// written in the probabilities, so it stays the exact derivative of what was rendered.
@@ -587,7 +586,7 @@ pub fn softmax_block<R: Real, P: SurfelParams<R>>(
     let s = softmax_numerators8(x);
     for l in 0..n {
         let inv = R::ONE / s[l];
-        for (c, xc) in x.iter().enumerate().take(k) {
+        for (c, xc) in x.iter().enumerate() {
             out[l * k + c] = xc[l] * inv;
         }
     }

@@ -143,9 +143,9 @@ const MEMBER_LANES: usize = 8;
 /// probability `> threshold`, in storage order.
 ///
 /// The softmax is the rasterizer's ([`softmax_numerators8`]): eight surfels at once, one per lane, so
-/// a visible surfel is a member exactly when its rendered probability exceeds the threshold. With the scalar
-/// `exp` of the standard library and one surfel at a time, this was a third of the loss's selection
-/// (15 exponentials for each of ~50 k surfels, every iteration).
+/// a visible surfel is a member exactly when its rendered probability exceeds the threshold. With the
+/// scalar `exp` of the standard library and one surfel at a time, this was a third of the loss's
+/// selection (15 exponentials for each of ~50 k surfels, every iteration).
 pub fn object_members<R: Real>(
     obj_logits: &[R],
     num_objects: usize,
@@ -587,7 +587,7 @@ mod tests {
 
     #[test]
     fn fps_takes_the_lowest_index_on_ties_and_never_a_non_finite_point() {
-        // 13 points (not a whole number of lanes): a symmetric cross, so later rounds tie, and two
+        // 14 points (not a whole number of lanes): a symmetric cross, so later rounds tie, and two
         // non-finite points that a NaN-unaware min/max would pick.
         let mut p: Vec<[f32; 3]> = vec![[0.0; 3]];
         for r in [1.0f32, 2.0, 3.0] {
