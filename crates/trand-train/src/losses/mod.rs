@@ -3,5 +3,6 @@
 
 pub mod dice;
 pub mod geometry;
+pub mod knn;
 pub mod object;
 pub mod photometric;

@@ -23,19 +23,20 @@
 //! both terms. A zero distance (the centre as its own neighbour) has zero gradient, as in PyTorch.
 //!
 //! Cost: one FPS run per object serves every level (each prefix of an FPS sequence is the FPS of that
-//! length), and kNN queries a kd-tree (kiddo) of the object's members, one tree per object and iteration
-//! for all levels ([`k_nearest`], the brute-force scan, is the reference it is tested against).
+//! length), and each FPS centre's neighbours are found once, for the largest K of the levels, in a
+//! uniform grid of the object's members ([`crate::losses::knn`]; [`k_nearest`], the plain scan, is the
+//! reference it is tested against).
 //!
 //! The discrete choices (members, FPS centres, neighbour lists, nearest other centre) are made once by
 //! [`select`] and then held fixed by [`evaluate`], which is what the finite-difference tests perturb.
 
-use std::num::NonZero;
-
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use trand_core::Real;
 use trand_core::math::softmax_numerators8;
+
+use super::knn::PointGrid;
+pub use super::knn::k_nearest;
 
 /// One level of the loss: `centres` FPS samples (G), each with `neighbours` nearest members (K).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -161,6 +162,7 @@ pub fn object_members<R: Real>(
     }
     assert_eq!(obj_logits.len() % k, 0, "object logits length");
     let thr = R::from_f64(threshold);
+    let sure_gap = R::from_f64(sure_member_gap(k, threshold));
     // Channel + 1 of the surfel's owner, 0 for none.
     const CHUNK: usize = MEMBER_LANES * 64;
     let mut owner = vec![0u16; obj_logits.len() / k];
@@ -173,7 +175,7 @@ pub fn object_members<R: Real>(
                 .chunks_mut(MEMBER_LANES)
                 .zip(logits.chunks(MEMBER_LANES * k))
             {
-                block_owners(block, k, thr, &mut e, o);
+                block_owners(block, k, thr, sure_gap, &mut e, o);
             }
         });
     let mut out = vec![Vec::new(); k];
@@ -185,12 +187,33 @@ pub fn object_members<R: Real>(
     out
 }
 
+/// The logit gap above which a surfel's largest channel surely exceeds probability `thr` (≥ ½) among
+/// `k` channels: `p_max = 1/(1 + Σ_{c≠max} e^{l_c − l_max}) ≥ 1/(1 + (k − 1) e^{−gap})`, which exceeds
+/// `thr` once `gap > ln((k − 1)/(1/thr − 1))`. The margin keeps such a surfel's computed probability
+/// well clear of `thr` (a few hundredths), so skipping its exponentials never changes a decision the
+/// rasterizer's softmax would make.
+fn sure_member_gap(k: usize, thr: f64) -> f64 {
+    const MARGIN: f64 = 0.1;
+    let room = 1.0 / thr - 1.0;
+    if room > 0.0 {
+        ((k.max(2) - 1) as f64 / room).ln() + MARGIN
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// The owner (channel + 1 whose probability exceeds `thr`, or 0) of each of the ≤ 8 surfels in `block`
 /// (surfel-major logits, `k` per surfel) into `owner`; `e` is scratch (`k` lanes).
+///
+/// Trained surfels mostly belong clearly to one channel: when every lane's largest logit leads the
+/// second by more than `sure_gap` ([`sure_member_gap`]), the owners are the largest channels and the
+/// fifteen exponentials per surfel are skipped. Otherwise (or with a non-finite logit, whose softmax
+/// is NaN: no owner) the block goes through the softmax.
 fn block_owners<R: Real>(
     block: &[R],
     k: usize,
     thr: R,
+    sure_gap: R,
     e: &mut [[R; MEMBER_LANES]],
     owner: &mut [u16],
 ) {
@@ -204,6 +227,32 @@ fn block_owners<R: Real>(
     }
     for ec in e.iter_mut() {
         ec[owner.len()..].fill(R::ZERO);
+    }
+    // Largest and second largest logit, the largest's channel (the first on ties), the logits' sum
+    // (non-finite when any logit is).
+    let neg_inf = R::from_f64(f64::NEG_INFINITY);
+    let (mut top, mut second, mut arg, mut sum) = (e[0], [neg_inf; L], [0i32; L], e[0]);
+    for (c, ec) in e.iter().enumerate().skip(1) {
+        for l in 0..L {
+            let (v, above) = (ec[l], ec[l] > top[l]);
+            second[l] = if above {
+                top[l]
+            } else if v > second[l] {
+                v
+            } else {
+                second[l]
+            };
+            arg[l] = if above { c as i32 } else { arg[l] };
+            top[l] = if above { v } else { top[l] };
+            sum[l] += v;
+        }
+    }
+    let sure = (0..owner.len()).all(|l| sum[l].is_finite() && top[l] - second[l] > sure_gap);
+    if sure {
+        for (o, &a) in owner.iter_mut().zip(&arg) {
+            *o = a as u16 + 1;
+        }
+        return;
     }
     let s = softmax_numerators8(e);
     let inv: [R; L] = std::array::from_fn(|l| R::ONE / s[l]);
@@ -302,72 +351,29 @@ pub fn farthest_point_sampling<R: Real>(points: &[[R; 3]], count: usize) -> Vec<
     chosen
 }
 
-/// The `k` of `points` nearest to `query` (squared Euclidean, ties to the lower index), nearest first.
-/// Points at a non-finite distance are never chosen, so fewer than `k` may come back.
-pub fn k_nearest<R: Real>(points: &[[R; 3]], query: &[R; 3], k: usize) -> Vec<usize> {
-    if k == 0 {
-        return Vec::new();
-    }
-    // A sorted list of the k best (distance, index) pairs; most candidates are rejected by one comparison
-    // with the current k-th. A later equal distance does not displace an earlier index.
-    let mut best: Vec<(R, usize)> = Vec::with_capacity(k + 1);
-    for (j, p) in points.iter().enumerate() {
-        let d = dist2(p, query);
-        if (best.len() == k && d >= best[k - 1].0) || !d.is_finite() {
-            continue;
-        }
-        let at = best.partition_point(|&(bd, _)| bd <= d);
-        best.insert(at, (d, j));
-        best.truncate(k);
-    }
-    best.into_iter().map(|(_, j)| j).collect()
-}
-
-/// [`k_nearest`] through a kd-tree of the same points: the same neighbours, nearest first, ties to the
-/// lower index (only an exact distance tie at the k-th place could differ). The brute-force scan cost
-/// G·n distance evaluations per level (112 centres × ~10 k members per object, every iteration from 100
-/// on: a tenth of a training iteration); the tree answers in O(k log n).
-fn tree_k_nearest<R: Real>(tree: &ImmutableKdTree<f64, 3>, query: &[R; 3], k: usize) -> Vec<usize> {
-    let Some(nk) = NonZero::new(k) else {
-        return Vec::new();
-    };
-    let q = query.map(R::to_f64);
-    let mut nn: Vec<(f64, usize)> = tree
-        .query(&q)
-        .nearest_n::<SquaredEuclidean<f64>>(nk)
-        .execute()
-        .into_iter()
-        .map(|r| (r.distance, r.item as usize))
-        .collect();
-    nn.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    nn.into_iter().map(|(_, j)| j).collect()
-}
-
 /// Selection of one object at one level, given the member positions (`local`, contiguous), their
-/// surfel indices and the members' FPS order (at least G long).
+/// surfel indices, the members' FPS order (at least G long) and each FPS centre's nearest members
+/// (nearest first, at least K long where the positions are finite).
 fn select_level<R: Real>(
     local: &[[R; 3]],
-    tree: Option<&ImmutableKdTree<f64, 3>>,
     members: &[usize],
     fps: &[usize],
+    nearest: &[Vec<usize>],
     level: ObjectLevel,
 ) -> Option<LevelSelection> {
     let (g, k) = (level.centres, level.neighbours);
-    if g < 2 || local.len() < g || local.len() < k || fps.len() < g {
+    if g < 2 || local.len() < g || local.len() < k || fps.len() < g || nearest.len() < g {
         return None;
     }
     let centres_pos = &fps[..g];
     let centres: Vec<usize> = centres_pos.iter().map(|&j| members[j]).collect();
     let mut neighbours = Vec::with_capacity(g * k);
-    for &c in centres_pos {
-        let nn = match tree {
-            Some(t) => tree_k_nearest(t, &local[c], k),
-            None => k_nearest(local, &local[c], k),
-        };
+    for nn in &nearest[..g] {
         if nn.len() < k {
             return None; // non-finite positions: no well-defined neighbourhood
         }
-        neighbours.extend(nn.into_iter().map(|j| members[j]));
+        // The K nearest are the first K of a longer nearest-first list (same order, same ties).
+        neighbours.extend(nn[..k].iter().map(|&j| members[j]));
     }
     let nearest_centre = (0..g)
         .map(|a| {
@@ -424,21 +430,26 @@ pub fn select<R: Real>(
                 .max()
                 .unwrap_or(0);
             let fps = farthest_point_sampling(&local, max_g);
-            // One kd-tree per object for every level's kNN queries; non-finite positions (no tree)
-            // fall back to the scan, which skips them.
-            let pts64: Vec<[f64; 3]> = local.iter().map(|p| p.map(R::to_f64)).collect();
-            let tree = pts64
+            // Each centre's neighbours once, for the largest K of the levels the object can fill.
+            let max_k = params
+                .levels
                 .iter()
-                .all(|p| p.iter().all(|v| v.is_finite()))
-                .then(|| ImmutableKdTree::<f64, 3>::new_from_slice(&pts64).ok())
-                .flatten();
+                .filter(|l| l.centres <= local.len() && l.neighbours <= local.len())
+                .map(|l| l.neighbours)
+                .max()
+                .unwrap_or(0);
+            let grid = PointGrid::new(&local);
+            let nearest: Vec<Vec<usize>> = fps
+                .par_iter()
+                .map(|&c| grid.k_nearest(&local[c].map(R::to_f64), max_k))
+                .collect();
             ObjectSelection {
                 channel,
                 num_members: m.len(),
                 levels: params
                     .levels
                     .iter()
-                    .map(|&l| select_level(&local, tree.as_ref(), &m, &fps, l))
+                    .map(|&l| select_level(&local, &m, &fps, &nearest, l))
                     .collect(),
             }
         })
@@ -659,6 +670,63 @@ mod tests {
     }
 
     #[test]
+    fn members_equal_the_lane_softmax_decision_with_and_without_the_gap_shortcut() {
+        // Blocks of clearly assigned surfels (large gaps: the shortcut), mixed blocks, exact ties at the
+        // top, non-finite logits and a partial last block; membership must be the lane softmax's
+        // `p > thr` everywhere.
+        let k = 15;
+        let n = 803;
+        let noise = rand_vec(43, n * k, -3.0, 3.0);
+        let mut logits: Vec<f32> = noise.iter().map(|&v| v as f32).collect();
+        for i in 0..n {
+            let row = &mut logits[i * k..(i + 1) * k];
+            match (i / 8) % 4 {
+                0 => row[(i * 7) % k] += 12.0, // sure
+                1 if i % 3 == 0 => row[(i * 5) % k] += 9.0,
+                2 if i % 5 == 0 => row[1] = row[2].max(row[1]) + 4.0, // tie between 1 and 2 below
+                _ => {}
+            }
+            if (i / 8) % 4 == 2 && i % 5 == 0 {
+                row[2] = row[1];
+            }
+        }
+        logits[100 * k + 3] = f32::NAN;
+        logits[8 * k + 4] = f32::INFINITY;
+        for thr in [0.5, 0.6, 0.9] {
+            let m = object_members(&logits, k, thr);
+            let mut owner = vec![0usize; n];
+            for (c, members) in m.iter().enumerate() {
+                for &i in members {
+                    owner[i] = c + 1;
+                }
+            }
+            for b in 0..n.div_ceil(8) {
+                let mut e = vec![[0.0f32; 8]; k];
+                let len = (n - b * 8).min(8);
+                for l in 0..len {
+                    for c in 0..k {
+                        e[c][l] = logits[(b * 8 + l) * k + c];
+                    }
+                }
+                let s = softmax_numerators8(&mut e);
+                for l in 0..len {
+                    let inv = 1.0 / s[l];
+                    let want = (0..k)
+                        .find(|&c| e[c][l] * inv > thr as f32)
+                        .map_or(0, |c| c + 1);
+                    assert_eq!(owner[b * 8 + l], want, "surfel {}, thr {thr}", b * 8 + l);
+                }
+            }
+        }
+        let members = object_members(&logits, k, 0.5)
+            .iter()
+            .skip(1)
+            .map(Vec::len)
+            .sum::<usize>();
+        assert!(members > n / 4, "{members} members: a weak test");
+    }
+
+    #[test]
     fn knn_matches_full_sort_and_contains_the_query_point() {
         let p = cloud(31, 300);
         for q in [0usize, 17, 299] {
@@ -672,22 +740,6 @@ mod tests {
             });
             assert_eq!(got, all[..16].to_vec());
             assert_eq!(got[0], q);
-        }
-    }
-
-    #[test]
-    fn tree_knn_equals_the_brute_force_scan() {
-        let p = cloud(33, 2000);
-        let pts64: Vec<[f64; 3]> = p.clone();
-        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts64).unwrap();
-        for q in (0..2000).step_by(37) {
-            for k in [1usize, 16, 32] {
-                assert_eq!(
-                    tree_k_nearest(&tree, &p[q], k),
-                    k_nearest(&p, &p[q], k),
-                    "query {q}, k {k}"
-                );
-            }
         }
     }
 
