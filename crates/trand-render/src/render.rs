@@ -280,10 +280,9 @@ impl<R: Real> Rendered<R> {
         let chunks = split_by_tile(&mut pairs, &s.bins, stride);
         let block = s.lay.block();
         let tile_rows = TILE as usize;
-        chunks
+        reorder(chunks, &heaviest_first(&s.bins))
             .into_par_iter()
-            .enumerate()
-            .with_min_len(4)
+            .with_max_len(1)
             .for_each(|(t, chunk)| {
                 backward_tile(
                     t,
@@ -408,6 +407,28 @@ impl<R: Real> OutputGrads<R> {
             }
         }
     }
+}
+
+/// The tiles, heaviest first: by list length (descending, ties by tile index).
+///
+/// Tiles differ in cost by two orders of magnitude (an object's silhouette against the empty table),
+/// so handing them out in raster order let the last heavy tiles run on one thread while the other
+/// idled. Taken heaviest first, one at a time, the threads finish within about one light tile of each
+/// other (longest-processing-time-first list scheduling). Each tile still writes only its own outputs:
+/// the order changes timing, never results.
+fn heaviest_first(bins: &Bins) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..bins.num_tiles()).collect();
+    order.sort_by_key(|&t| std::cmp::Reverse(bins.tile_start[t + 1] - bins.tile_start[t]));
+    order
+}
+
+/// `items` (one per tile) reordered as `order`.
+fn reorder<T>(items: Vec<T>, order: &[usize]) -> Vec<(usize, T)> {
+    let mut slots: Vec<Option<T>> = items.into_iter().map(Some).collect();
+    order
+        .iter()
+        .map(|&t| (t, slots[t].take().expect("a permutation")))
+        .collect()
 }
 
 /// Splits a pair-indexed buffer (`per_pair` values per pair) into one slice per tile.
@@ -557,12 +578,14 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
     let mut rows = par_zeros(bins.num_pairs() * TILE as usize);
     let row_chunks = split_by_tile(&mut rows, &bins, TILE as usize);
     let bg = settings.background.map(R::from_f32);
-    blocks
-        .par_chunks_mut(block)
-        .zip(iblocks.par_chunks_mut(INT_CHANNELS * TILE_PIXELS))
+    let tiles: Vec<_> = blocks
+        .chunks_mut(block)
+        .zip(iblocks.chunks_mut(INT_CHANNELS * TILE_PIXELS))
         .zip(row_chunks)
-        .enumerate()
-        .with_min_len(4)
+        .collect();
+    reorder(tiles, &heaviest_first(&bins))
+        .into_par_iter()
+        .with_max_len(1)
         .for_each(|(t, ((b, ib), rw))| {
             raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, labels, b, ib, rw)
         });
