@@ -44,15 +44,18 @@ impl Bins {
 /// Bins the visible surfels into `tiles_x × tiles_y` tiles.
 pub fn bin<R: Real>(projs: &[Proj<R>], tiles_x: u32, tiles_y: u32) -> Bins {
     let n_tiles = (tiles_x * tiles_y) as usize;
-    let keys: Vec<u64> = projs.iter().map(|p| p.depth.to_bits_u64()).collect();
+    // The keys and tile rectangles in one sequential pass: the scatter below visits the surfels in depth
+    // order, and reading each rectangle from its ~200-byte `Proj` there was a cache miss per surfel
+    // (half of the binning's time on a trained 55 k-surfel scene).
+    let (keys, rects): (Vec<u64>, Vec<[u32; 4]>) =
+        projs.iter().map(|p| (p.depth.to_bits_u64(), p.tiles)).unzip();
     let order = radix_order(keys);
 
     let mut counts = vec![0u32; n_tiles + 1];
     let mut pair_start = Vec::with_capacity(projs.len() + 1);
     pair_start.push(0u32);
     let mut total = 0u32;
-    for p in projs {
-        let [x0, y0, x1, y1] = p.tiles;
+    for &[x0, y0, x1, y1] in &rects {
         for ty in y0..y1 {
             for tx in x0..x1 {
                 counts[(ty * tiles_x + tx) as usize] += 1;
@@ -69,8 +72,7 @@ pub fn bin<R: Real>(projs: &[Proj<R>], tiles_x: u32, tiles_y: u32) -> Bins {
     let mut tile_list = vec![0u32; total as usize];
     let mut pair_pos = vec![0u32; total as usize];
     for &j in &order {
-        let p = &projs[j as usize];
-        let [x0, y0, x1, y1] = p.tiles;
+        let [x0, y0, x1, y1] = rects[j as usize];
         let mut k = pair_start[j as usize] as usize;
         for ty in y0..y1 {
             for tx in x0..x1 {
