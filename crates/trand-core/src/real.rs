@@ -58,7 +58,8 @@ pub trait Real:
     fn min(self, o: Self) -> Self;
     fn to_bits_u64(self) -> u64;
     /// `exp(x)` for the rasterizer's Gaussian falloff, `x ≤ 0`. Exact (`exp`) by default; `f32`
-    /// overrides it with a faster polynomial (relative error < 2e-7, see [`fast_exp_f32`]).
+    /// overrides it with a faster polynomial (relative error < 3e-7 on the rasterizer's range, see
+    /// [`fast_exp_f32`]).
     #[inline(always)]
     fn fast_exp(self) -> Self {
         self.exp()
@@ -75,6 +76,21 @@ pub trait Real:
     fn lanes_as_i32(_v: &[Self::Lane; 8]) -> Option<&[i32; 8]> {
         None
     }
+}
+
+/// `e^r` for the reduced argument `|r| ≤ ln2/2`: the degree-6 Taylor polynomial (truncation error
+/// `r⁷/7! < 1.3e-7` relative), evaluated by Estrin's scheme. Horner's form is a chain of twelve
+/// dependent multiplies and adds; grouped as `(1 + r) + r²(½ + r/6) + r⁴((1/24 + r/120) + r²/720)` the
+/// longest chain is five, which matters in the rasterizer's kernels, where the exponential is the
+/// longest dependency of every eight-pixel group.
+#[inline(always)]
+fn exp_poly(r: f32) -> f32 {
+    let r2 = r * r;
+    let r4 = r2 * r2;
+    let a = 1.0 + r;
+    let b = 0.5 + r * (1.0 / 6.0);
+    let c = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0);
+    (a + r2 * b) + r4 * c
 }
 
 /// [`fast_exp_f32`] on eight lanes, step by step (one loop per operation, which LLVM vectorizes
@@ -95,10 +111,7 @@ pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
     let mut p = [0.0f32; 8];
     for l in 0..8 {
         let r = xc[l] - n[l] * 0.693_145_75 - n[l] * 1.428_606_8e-6;
-        p[l] = 1.0
-            + r * (1.0
-                + r * (0.5
-                    + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+        p[l] = exp_poly(r);
     }
     let mut out = [0.0f32; 8];
     for l in 0..8 {
@@ -110,8 +123,8 @@ pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
 }
 
 /// `exp(x)` in f32 by Cody–Waite range reduction `x = n·ln2 + r`, `|r| ≤ ln2/2` (n = round(x/ln2)), and a degree-6
-/// Taylor polynomial for `e^r` (truncation error < 2e-7 relative on that interval), scaled by `2ⁿ`
-/// through the exponent bits. Inputs below −87 return 0 (the result would be denormal).
+/// Taylor polynomial for `e^r` ([`exp_poly`]), scaled by `2ⁿ` through the exponent bits: 2.8e-7
+/// relative error at worst on `[−30, 0]` in f32 (the test's sweep; 2.5e-7 in Horner's form). Inputs below −87 return 0 (the result would be denormal).
 #[inline(always)]
 pub fn fast_exp_f32(x: f32) -> f32 {
     // Branch-free (a select at the end), so that a loop over lanes vectorizes.
@@ -131,10 +144,7 @@ pub fn fast_exp_f32(x: f32) -> f32 {
     let ni = k.to_bits() as i32 - MAGIC.to_bits() as i32;
     // ln2 split in a high part exact in f32 and a low correction.
     let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
-    let p = 1.0
-        + r * (1.0
-            + r * (0.5
-                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let p = exp_poly(r);
     let bits = ((ni + 127) as u32) << 23;
     let e = p * f32::from_bits(bits);
     if underflow { 0.0 } else { e }

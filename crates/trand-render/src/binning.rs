@@ -47,8 +47,10 @@ pub fn bin<R: Real>(projs: &[Proj<R>], tiles_x: u32, tiles_y: u32) -> Bins {
     // The keys and tile rectangles in one sequential pass: the scatter below visits the surfels in depth
     // order, and reading each rectangle from its ~200-byte `Proj` there was a cache miss per surfel
     // (half of the binning's time on a trained 55 k-surfel scene).
-    let (keys, rects): (Vec<u64>, Vec<[u32; 4]>) =
-        projs.iter().map(|p| (p.depth.to_bits_u64(), p.tiles)).unzip();
+    let (keys, rects): (Vec<u64>, Vec<[u32; 4]>) = projs
+        .iter()
+        .map(|p| (p.depth.to_bits_u64(), p.tiles))
+        .unzip();
     let order = radix_order(keys);
 
     let mut counts = vec![0u32; n_tiles + 1];
