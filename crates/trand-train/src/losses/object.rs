@@ -207,7 +207,7 @@ fn sure_member_gap(k: usize, thr: f64) -> f64 {
 ///
 /// Trained surfels mostly belong clearly to one channel: when every lane's largest logit leads the
 /// second by more than `sure_gap` ([`sure_member_gap`]), the owners are the largest channels and the
-/// fifteen exponentials per surfel are skipped. Otherwise (or with a non-finite logit, whose softmax
+/// K exponentials per surfel are skipped. Otherwise (or with a non-finite logit, whose softmax
 /// is NaN: no owner) the block goes through the softmax.
 fn block_owners<R: Real>(
     block: &[R],
