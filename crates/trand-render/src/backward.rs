@@ -32,7 +32,7 @@ use trand_core::Real;
 use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
-use crate::forward::{Plane, half_columns, tile_pixels};
+use crate::forward::{PADDED_PIXELS, PaddedPlane, RowGroups, group_columns, tile_pixels};
 use crate::intersect::{Row, RowBasis, blended_lanes, cross, ndc_depth_lanes};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
@@ -95,9 +95,7 @@ pub fn backward_tile<R: Real>(
     let (tx0, ty0, tx1, ty1) = tile_pixels(t, bins.tiles_x, cam.width, cam.height);
     let k_obj = lay.num_objects;
     let stride = rec::stride(k_obj);
-    let (last, medpos) = ibuf.split_at(TILE_PIXELS);
-    let last: &[u32; TILE_PIXELS] = last.try_into().expect("256 pixels");
-    let medpos: &[u32; TILE_PIXELS] = medpos.try_into().expect("256 pixels");
+    let (last, medpos_in) = ibuf.split_at(TILE_PIXELS);
     let max_last = last.iter().copied().max().unwrap_or(0) as usize;
     if max_last == 0 {
         return;
@@ -118,23 +116,33 @@ pub fn backward_tile<R: Real>(
     let has_z = has_depth || has_med || has_dist;
     let z = R::ZERO;
 
-    // Upstream gradients, gathered into channel planes.
-    let mut g_rgb: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut g_msk: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut g_nrm: [Plane<R>; 3] = [[z; TILE_PIXELS]; 3];
-    let mut g_obj: Vec<Plane<R>> = if has_obj {
-        vec![[z; TILE_PIXELS]; k_obj]
+    // Upstream gradients and the forward's per-pixel state, in padded channel planes (an eight-pixel
+    // group may run up to seven pixels past the tile, see [`crate::forward::PADDED_PIXELS`]).
+    let padded = |src: &[R]| -> PaddedPlane<R> {
+        let mut p = [z; PADDED_PIXELS];
+        p[..TILE_PIXELS].copy_from_slice(src);
+        p
+    };
+    let mut g_rgb: [PaddedPlane<R>; 3] = [[z; PADDED_PIXELS]; 3];
+    let mut g_msk: [PaddedPlane<R>; 3] = [[z; PADDED_PIXELS]; 3];
+    let mut g_nrm: [PaddedPlane<R>; 3] = [[z; PADDED_PIXELS]; 3];
+    let mut g_obj: Vec<PaddedPlane<R>> = if has_obj {
+        vec![[z; PADDED_PIXELS]; k_obj]
     } else {
         Vec::new()
     };
     let (mut g_a, mut g_d, mut g_med, mut g_dist, mut g_bg) = (
-        [z; TILE_PIXELS],
-        [z; TILE_PIXELS],
-        [z; TILE_PIXELS],
-        [z; TILE_PIXELS],
-        [z; TILE_PIXELS],
+        [z; PADDED_PIXELS],
+        [z; PADDED_PIXELS],
+        [z; PADDED_PIXELS],
+        [z; PADDED_PIXELS],
+        [z; PADDED_PIXELS],
     );
-    let t_final = plane(lay.t_final);
+    let t_final = padded(plane(lay.t_final));
+    let mut medpos = [u32::MAX; PADDED_PIXELS];
+    if has_med {
+        medpos[..TILE_PIXELS].copy_from_slice(medpos_in);
+    }
     for y in ty0..=ty1 {
         for x in tx0..=tx1 {
             let idx = ((y - ty0) * TILE as i32 + (x - tx0)) as usize;
@@ -173,15 +181,15 @@ pub fn backward_tile<R: Real>(
         }
     }
     // The distortion moments exist only with the geometric planes (a distortion gradient needs them).
-    let (m1f, m2f) = if lay.has_geometry() {
-        (plane(lay.m1), plane(lay.m2))
+    let (m1f, m2f) = if lay.has_geometry() && has_dist {
+        (padded(plane(lay.m1)), padded(plane(lay.m2)))
     } else {
-        (&[][..], &[][..])
+        ([z; PADDED_PIXELS], [z; PADDED_PIXELS])
     };
 
     // Running state: transmittance and the combined suffix sum.
-    let mut tr: Plane<R> = std::array::from_fn(|i| t_final[i]);
-    let mut suffix: Plane<R> = [z; TILE_PIXELS];
+    let mut tr: PaddedPlane<R> = t_final;
+    let mut suffix: PaddedPlane<R> = [z; PADDED_PIXELS];
 
     let list = bins.tile(t);
     let two = R::from_f64(2.0);
@@ -190,7 +198,7 @@ pub fn backward_tile<R: Real>(
     // Per-lane partial sums of the pair's record; summed over the lanes when the pair is done.
     let mut acc = [zv; rec::OBJ];
     let mut acc_obj = [zv; crate::MAX_OBJECTS];
-    let xs = half_columns::<R>(tx0);
+    let xs = group_columns::<R>(tx0);
     // The tile origin, for the tile-local coordinates of the ∂L/∂T moments; `Σ dz·(u, v, 1)` per pair.
     let (ox, oy) = (R::from_f64(tx0 as f64), R::from_f64(ty0 as f64));
     let mut acc_dz = [zv; 3];
@@ -228,12 +236,9 @@ pub fn backward_tile<R: Real>(
             }
             let yr = R::from_f64((ty0 + ly) as f64);
             let row = Row::at(&basis, yr);
-            for (half, &xr) in xs.iter().enumerate() {
-                let hb = (bits >> (half * LANES)) as u8;
-                if hb == 0 {
-                    continue;
-                }
-                let base = ly as usize * TILE as usize + half * LANES;
+            for (c0, hb) in RowGroups::new(bits) {
+                let xr = xs[c0];
+                let base = ly as usize * TILE as usize + c0;
                 let px = base..base + LANES;
                 let h = blended_lanes(p, &row, xr, M::from_bits(hb));
                 if !touched {
@@ -291,7 +296,7 @@ pub fn backward_tile<R: Real>(
                 if let Some(tl) = &tl {
                     let mut vo = V::splat(beta);
                     for ((a, rows), &c) in acc_l[..n_lab].iter_mut().zip(&tl.rows).zip(&coef) {
-                        let on = M::from_bits((rows[ly as usize] >> (half * LANES)) as u8);
+                        let on = M::from_bits((rows[ly as usize] >> c0) as u8);
                         vo += select(on, V::splat(c), zv);
                         *a += select(on, w, zv);
                     }
