@@ -2,16 +2,9 @@
 //!
 //! Each subcommand lives in its own module under `cmd/`; `main` only parses and dispatches.
 
-/// mimalloc instead of glibc's allocator. Every training iteration allocates and frees the same large
-/// render buffers (tile blocks, pair records, gradient maps: tens of MiB); glibc returned them to the
-/// kernel and took a page fault per 4 KiB on the next iteration (0.9 M faults, a fifth of the time, in
-/// a 100-iteration refinement). mimalloc keeps the pages: refinement on seq_101 9.0 → 6.5 s, t=0
-/// 300 iterations 4 % faster (BENCHMARKS.md §2).
-#[global_allocator]
-static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
 use clap::{Parser, Subcommand};
 
+mod alloc;
 mod cmd;
 
 #[derive(Parser)]
@@ -44,6 +37,7 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    alloc::keep_freed_pages();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
