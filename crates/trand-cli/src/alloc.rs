@@ -11,7 +11,7 @@
 //! seq_105 t=0 run (1000 iterations) took 89.7 s with 6.4 M page faults and 164 s of CPU, and 64.4 s
 //! with 465 faults and 125 s of CPU once purging was off (BENCHMARKS.md §2, session 8). So trand turns
 //! purging off: freed pages stay with the process for reuse, and the resident size stays at the run's
-//! high-water mark (~350 MB for a t=0 run at 320×240) instead of shrinking between iterations.
+//! high-water mark (360–400 MB for a t=0 run at 320×240) instead of shrinking between iterations.
 //!
 //! A `MIMALLOC_PURGE_DELAY` set in the environment (milliseconds; mimalloc's own variable) wins.
 #![allow(unsafe_code)]
