@@ -7,9 +7,8 @@
 //! blending, so saturated pixels cost nothing and the tile stops once every mask is empty. A row is
 //! processed in groups of eight pixels ([`crate::lanes`]), each starting at the row's lowest pixel not
 //! yet covered ([`RowGroups`]): one vector instruction per operation for eight pixels, with masks where
-//! the scalar code branched. The
-//! accumulators live in fixed arrays on the stack (channel-planar, index `ly·16 + lx`, padded by eight
-//! for a group starting late in the last row).
+//! the scalar code branched. The accumulators live in fixed arrays on the stack (channel-planar, index
+//! `ly·16 + lx`, padded by eight for a group starting late in the last row).
 //! Per pixel, with `T` the transmittance in front of surfel `i` and `w_i = α_i T`:
 //!
 //! | output | value |
@@ -36,15 +35,12 @@ use crate::layout::Layout;
 use crate::preprocess::Proj;
 use crate::simd::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 
-/// One channel plane of a tile.
-pub type Plane<R> = [R; TILE_PIXELS];
-
-/// A tile plane with [`LANES`] values of padding: an eight-pixel group may start at any column, so one
+/// A tile's channel plane with [`LANES`] values of padding: an eight-pixel group may start at any column, so one
 /// starting late in the last row reads and writes up to seven pixels past the tile (masked lanes, whose
 /// values are stored back unchanged).
 pub const PADDED_PIXELS: usize = TILE_PIXELS + LANES;
 
-/// One channel plane of a tile, padded ([`PADDED_PIXELS`]).
+/// One channel plane of a tile (index `ly·16 + lx`), padded ([`PADDED_PIXELS`]).
 pub type PaddedPlane<R> = [R; PADDED_PIXELS];
 
 /// Pixel range of tile `t` clipped to the image: `(x0, y0, x1, y1)` inclusive.
@@ -331,5 +327,38 @@ pub fn raster_tile<R: Real>(
     medpos_out[..TILE_PIXELS].copy_from_slice(&medpos[..TILE_PIXELS]);
     if let Some(sp) = lay.sums {
         buf[sp * TILE_PIXELS..sp * TILE_PIXELS + 2 * k_obj].copy_from_slice(&sums[..2 * k_obj]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn row_groups_cover_every_pixel_once_and_never_take_more_groups_than_halves() {
+        for bits in 0..=u16::MAX {
+            let mut covered = 0u32;
+            let mut groups = 0;
+            let mut next_free = 0;
+            for (c0, lanes) in RowGroups::new(bits) {
+                assert!(c0 >= next_free, "mask {bits:#06x}: groups overlap");
+                assert_eq!(lanes & 1, 1, "mask {bits:#06x}: a group starts on a pixel");
+                covered |= u32::from(lanes) << c0;
+                next_free = c0 + LANES;
+                groups += 1;
+            }
+            assert_eq!(covered, u32::from(bits), "mask {bits:#06x}");
+            // Never more groups than the fixed halves (columns 0–7, 8–15) took, and at most
+            // ⌈span/8⌉: each group starts eight or more columns after the previous one.
+            let halves = usize::from(bits & 0xff != 0) + usize::from(bits >> 8 != 0);
+            assert!(groups <= halves, "mask {bits:#06x}");
+            if bits != 0 {
+                let span = 16 - bits.leading_zeros() - bits.trailing_zeros();
+                assert!(
+                    groups <= span.div_ceil(LANES as u32) as usize,
+                    "mask {bits:#06x}"
+                );
+            }
+        }
     }
 }
