@@ -28,9 +28,10 @@ pub const POINTS_PER_CELL: f64 = 8.0;
 /// Most cells along one axis (bounds the grid's memory for elongated or degenerate boxes).
 const MAX_CELLS_PER_AXIS: usize = 128;
 
-/// Squared distance, in the form every query here uses (and [`k_nearest`] for `f64`).
+/// Squared distance: the one expression of every distance here and in the object-aware loss, so the
+/// grid's distances are bit for bit [`k_nearest`]'s.
 #[inline(always)]
-fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+pub(crate) fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
     let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
     dx * dx + dy * dy + dz * dz
 }
@@ -46,8 +47,7 @@ pub fn k_nearest<R: Real>(points: &[[R; 3]], query: &[R; 3], k: usize) -> Vec<us
     // with the current k-th. A later equal distance does not displace an earlier index.
     let mut best: Vec<(R, usize)> = Vec::with_capacity(k + 1);
     for (j, p) in points.iter().enumerate() {
-        let (dx, dy, dz) = (p[0] - query[0], p[1] - query[1], p[2] - query[2]);
-        let d = dx * dx + dy * dy + dz * dz;
+        let d = dist2(p, query);
         if (best.len() == k && d >= best[k - 1].0) || !d.is_finite() {
             continue;
         }

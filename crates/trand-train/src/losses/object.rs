@@ -35,8 +35,8 @@ use serde::{Deserialize, Serialize};
 use trand_core::Real;
 use trand_core::math::softmax_numerators8;
 
-use super::knn::PointGrid;
 pub use super::knn::k_nearest;
+use super::knn::{PointGrid, dist2};
 
 /// One level of the loss: `centres` FPS samples (G), each with `neighbours` nearest members (K).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -129,12 +129,6 @@ impl<R: Real> ObjectLoss<R> {
             }
         }
     }
-}
-
-#[inline]
-fn dist2<R: Real>(a: &[R; 3], b: &[R; 3]) -> R {
-    let (dx, dy, dz) = (a[0] - b[0], a[1] - b[1], a[2] - b[2]);
-    dx * dx + dy * dy + dz * dz
 }
 
 /// Surfels per block of [`object_members`]: one per lane of [`Real::fast_exp8`].
