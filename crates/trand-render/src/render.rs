@@ -153,6 +153,8 @@ struct Saved<R> {
     /// Per list entry (pair), the pixels of each of the 16 tile rows that the surfel blended.
     rows: Vec<u16>,
     labels: Option<Vec<u8>>,
+    /// The tiles heaviest first ([`heaviest_first`]), the order both kernels take them in.
+    tile_order: Vec<usize>,
 }
 
 /// Gradients of a scalar loss with respect to the rendered maps (row-major, `None` = zero).
@@ -280,7 +282,7 @@ impl<R: Real> Rendered<R> {
         let chunks = split_by_tile(&mut pairs, &s.bins, stride);
         let block = s.lay.block();
         let tile_rows = TILE as usize;
-        reorder(chunks, &heaviest_first(&s.bins))
+        reorder(chunks, &s.tile_order)
             .into_par_iter()
             .with_max_len(1)
             .for_each(|(t, chunk)| {
@@ -583,7 +585,8 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
         .zip(iblocks.chunks_mut(INT_CHANNELS * TILE_PIXELS))
         .zip(row_chunks)
         .collect();
-    reorder(tiles, &heaviest_first(&bins))
+    let tile_order = heaviest_first(&bins);
+    reorder(tiles, &tile_order)
         .into_par_iter()
         .with_max_len(1)
         .for_each(|(t, ((b, ib), rw))| {
@@ -701,6 +704,7 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             iblocks,
             rows,
             labels: labels.map(<[u8]>::to_vec),
+            tile_order,
         },
     })
 }
