@@ -122,9 +122,10 @@ pub fn fast_exp_f32x8(x: [f32; 8]) -> [f32; 8] {
     out
 }
 
-/// `exp(x)` in f32 by Cody–Waite range reduction `x = n·ln2 + r`, `|r| ≤ ln2/2` (n = round(x/ln2)), and a degree-6
-/// Taylor polynomial for `e^r` ([`exp_poly`]), scaled by `2ⁿ` through the exponent bits: 2.8e-7
-/// relative error at worst on `[−30, 0]` in f32 (the test's sweep; 2.5e-7 in Horner's form). Inputs below −87 return 0 (the result would be denormal).
+/// `exp(x)` in f32 by Cody–Waite range reduction `x = n·ln2 + r`, `|r| ≤ ln2/2` (n = round(x/ln2)),
+/// and a degree-6 Taylor polynomial for `e^r` ([`exp_poly`]), scaled by `2ⁿ` through the exponent
+/// bits: 2.8e-7 relative error at worst on `[−30, 0]` in f32 (the test's sweep; 2.5e-7 in Horner's
+/// form). Inputs below −87 return 0 (the result would be denormal).
 #[inline(always)]
 pub fn fast_exp_f32(x: f32) -> f32 {
     // Branch-free (a select at the end), so that a loop over lanes vectorizes.
