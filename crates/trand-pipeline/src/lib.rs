@@ -11,6 +11,7 @@
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
 pub mod detect;
+pub mod openings;
 pub mod outputs;
 pub mod reconstruct;
 pub mod relocalise;

@@ -19,6 +19,7 @@ use trand_io::{Sequence, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
+use crate::openings::{Opening, VesselTop};
 use crate::targets::{self, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
@@ -51,6 +52,17 @@ pub enum InitMode {
     VisualHull,
 }
 
+/// What is done about the tops of open vessels (see [`crate::openings`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OpeningPrior {
+    /// Surfels are kept out of the opening of every object the hull shows to be an upright
+    /// straight-walled vessel, so that its inside is fitted instead of a lid.
+    Carve,
+    /// No prior: the masks' visual hull decides (a lid forms over every opening).
+    Off,
+}
+
 /// Everything a reconstruction needs besides the data.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -61,6 +73,7 @@ pub struct ReconstructOptions {
     pub downsample: u32,
     pub init_mode: InitMode,
     pub init: InitConfig,
+    pub openings: OpeningPrior,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -74,6 +87,7 @@ impl Default for ReconstructOptions {
             downsample: 1,
             init_mode: InitMode::VisualHull,
             init: InitConfig::default(),
+            openings: OpeningPrior::Carve,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -95,6 +109,8 @@ pub struct Reconstruction {
     /// `(iteration, loss)` of every iteration.
     pub curve: Vec<(u32, f32)>,
     pub initial_surfels: usize,
+    /// The opening prior's decision per object (empty when it is off).
+    pub vessel_tops: Vec<VesselTop>,
 }
 
 fn view_count(n: u32) -> Result<ViewCount> {
@@ -141,16 +157,60 @@ pub fn train_views(
     Ok((views, channels))
 }
 
+/// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
+/// glassware (half the box's half-width).
+fn hull_box(views: &[TrainView]) -> Result<SlabBox> {
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
+    b.max[2] = 0.5 * (b.max[0] - b.min[0]) * 0.5;
+    Ok(b)
+}
+
+/// The openings of the training masks' vessels, with the decision per object.
+fn find_openings(
+    views: &[TrainView],
+    opts: &ReconstructOptions,
+) -> Result<(Vec<Opening>, Vec<VesselTop>)> {
+    if opts.openings == OpeningPrior::Off || opts.method.supervision() != Supervision::ObjectAware {
+        return Ok((Vec::new(), Vec::new()));
+    }
+    let b = hull_box(views)?;
+    let hull = crate::openings::object_voxels(
+        views,
+        glam::DVec3::from_array(b.min),
+        glam::DVec3::from_array(b.max),
+    );
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    Ok(crate::openings::classify(&hull, &cams))
+}
+
+/// Removes the surfels inside any opening, with their optimiser state.
+fn carve(trainer: &mut Trainer<'_>, openings: &[Opening]) {
+    if openings.is_empty() {
+        return;
+    }
+    let keep: Vec<bool> = trainer
+        .surfels
+        .means
+        .iter()
+        .map(|&p| !openings.iter().any(|o| o.carves(p)))
+        .collect();
+    if keep.iter().all(|&k| k) {
+        return;
+    }
+    trainer.surfels.retain(&keep);
+    trainer.adam.retain(&keep);
+    // Carving runs right after densification, when the statistics are zero anyway.
+    trainer.stats = trand_train::DensifyStats::new(trainer.surfels.len());
+}
+
 /// Slab samples carved by the masks (see the module docs).
 fn visual_hull_points(
     views: &[TrainView],
     cfg: &InitConfig,
     target: usize,
 ) -> Result<Vec<[f32; 3]>> {
-    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
-    let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
-    // Tall enough for stacked glassware: half the box's half-width.
-    b.max[2] = 0.5 * (b.max[0] - b.min[0]) * 0.5;
+    let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
     let inside = |p: [f32; 3]| {
         let mut seen = 0;
@@ -232,6 +292,7 @@ pub fn reconstruct(
     opts.train.validate()?;
     let t0 = Instant::now();
     let (views, channels) = train_views(seq, opts)?;
+    let (openings, vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {
         cfg.object_loss.active = Activation::Never;
@@ -247,9 +308,13 @@ pub fn reconstruct(
     let t1 = Instant::now();
     let last = cfg.start_iteration + cfg.iterations;
     let mut trainer = Trainer::new(surfels, cfg, &views, extent, opts.method.supervision());
+    carve(&mut trainer, &openings);
     let mut curve = Vec::new();
     for it in first..=last {
         let rep = trainer.step(it, it == last)?;
+        if rep.densified {
+            carve(&mut trainer, &openings);
+        }
         curve.push((it, rep.loss));
         on_step(&rep, &trainer.surfels);
         if cancel.load(Ordering::SeqCst) && it < last {
@@ -272,5 +337,6 @@ pub fn reconstruct(
         optimise_s,
         curve,
         initial_surfels: initial,
+        vessel_tops,
     })
 }

@@ -1,0 +1,394 @@
+//! Open vessels: where the masks cannot tell an opening from a lid, a thin-shell prior decides.
+//!
+//! **Why a lid forms.** Instance masks constrain a surfel model only up to its visual hull. For an
+//! upright tumbler, mug or bowl the hull is solid: every pixel of the opening is an object pixel (its
+//! first surface is the inner wall or the bottom), and the ring views, looking down at 40–60°, leave a
+//! pyramidal "roof" above the rim (each view's silhouette cone is tangent to the far rim and rises
+//! towards the camera by `cot e` per unit of run). Colour does not break the tie for glass: what is
+//! seen through the opening is seen through a thin wall as well. The optimiser keeps the surfels that
+//! the training rays meet first, so it ends with a lid on the roof, up to a container's depth too near.
+//!
+//! **What is done.** Before training, the training masks are turned into a labelled voxel hull
+//! ([`object_voxels`]: a voxel is inside when every view that sees it shows an object there, and it is
+//! labelled with the object most views show). Each object's hull gives a radial profile `R(z)` about a
+//! vertical axis ([`Profile`]). The top of the profile that shrinks at least half as fast as a roof
+//! would (`−dR/dz ≥ ½ cot e_max`) is the roof; the first slice below it is the rim. An object is an
+//! **open vessel** ([`classify`]) when it stands upright, nothing rests on it, and its rim is its widest
+//! cross-section over the upper body (tumblers, mugs and bowls standing on their base). Its opening is
+//! then carved ([`Opening::carves`]): everything above the rim, and everything further than a wall
+//! margin inside the profile above the floor. The training views then have to explain the opening with
+//! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
+//!
+//! Closed tops are never carved: spheroids, bottles and domes (an upturned bowl) narrow towards the
+//! top, wine glasses' bowls are wider than their rim, and an object that supports another is closed.
+//! An upturned straight-walled vessel with nothing on it (an upturned mug) looks the same as an upright
+//! one to the masks and is taken as open: the one case this prior gets wrong.
+
+use std::collections::BTreeMap;
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use serde::Serialize;
+use trand_core::Camera;
+
+use crate::targets::TrainView;
+
+/// Edge of a hull voxel (m): well below a wall margin, and a 0.7 m box stays under 20 M voxels.
+pub const VOXEL_M: f64 = 0.002;
+/// Radial margin kept inside the profile for the wall (m): glass walls are 2–5 mm thick and the hull
+/// overestimates the outer surface by about a voxel.
+pub const WALL_MARGIN_M: f64 = 0.006;
+/// Height above the hull's bottom below which nothing is carved (m): the vessel's base.
+pub const FLOOR_M: f64 = 0.005;
+/// A rim must be at least this wide (m): narrower tops (bottle necks) are not openings one can see into.
+pub const MIN_RIM_RADIUS_M: f64 = 0.02;
+/// An open vessel stands on the table: its hull starts below this height (m). Stacked objects are
+/// left alone: the hull of an object resting on another mixes the two, and a bottle's shoulder over
+/// an upturned bowl passes for a roof.
+pub const ON_TABLE_M: f64 = 0.004;
+/// The rim may be this much narrower than the widest slice of the upper body and still count as the
+/// widest (m): about one voxel of hull noise on each side.
+pub const RIM_TOLERANCE_M: f64 = 0.0035;
+/// The upper body may narrow this much below the rim (m): a tumbler's taper plus hull noise.
+pub const MAX_TAPER_M: f64 = 0.008;
+/// A straight-walled vessel's rim stands at least this many times its radius high; lower or
+/// narrowing bodies are judged by their crown ([`MAX_BOWL_CROWN`]).
+pub const MIN_ASPECT: f64 = 1.5;
+/// Largest [`Profile::crown`] of a bowl. A bowl's profile is a spheroid's lower half; what differs is
+/// the hull above the widest slice: over a flat rim of radius `R` only the roof, `R tan e` high (0.88 R
+/// for ring views at 41°); over a spheroid with semi-axes `a`, `c` the cap and the roof over it, whose
+/// silhouette planes meet `√(a² sin² e + c² cos² e) / cos e` above the equator (1.1–1.3 a for
+/// `c/a` of 0.7–1). The crown also counts the band within a voxel of the widest slice, which adds
+/// about 0.2 to both; the threshold sits between the two.
+pub const MAX_BOWL_CROWN: f64 = 1.25;
+/// Largest lean of the axis (horizontal drift of the slice centres per unit height) of an upright
+/// object: tan 10°.
+pub const MAX_LEAN: f64 = 0.18;
+/// The hull above a rim may stand this many times the roof's height (`R tan e`) before it counts as
+/// more than a roof: the polygonal roof of six views is a little higher than the cone of many.
+const ROOF_SLACK: f64 = 1.2;
+/// Angular sectors of the radial profile; the median over sectors ignores a handle.
+const SECTORS: usize = 16;
+/// Slices (of [`VOXEL_M`]) compared by the roof test.
+const ROOF_RUN: usize = 4;
+/// An object needs this many voxels for a profile.
+const MIN_VOXELS: usize = 200;
+
+/// Labelled voxel centres of the training masks' visual hull, per object id.
+pub fn object_voxels(views: &[TrainView], min: DVec3, max: DVec3) -> BTreeMap<u16, Vec<DVec3>> {
+    let n = |k: usize| (((max[k] - min[k]) / VOXEL_M).ceil() as usize).max(1);
+    let (nx, ny, nz) = (n(0), n(1), n(2));
+    let columns: Vec<Vec<(u16, DVec3)>> = (0..nx * ny)
+        .into_par_iter()
+        .map(|c| {
+            let (ix, iy) = (c % nx, c / nx);
+            (0..nz)
+                .filter_map(|iz| {
+                    let p = min + (DVec3::new(ix as f64, iy as f64, iz as f64) + 0.5) * VOXEL_M;
+                    label_of(views, p).map(|id| (id, p))
+                })
+                .collect()
+        })
+        .collect();
+    let mut out: BTreeMap<u16, Vec<DVec3>> = BTreeMap::new();
+    for (id, p) in columns.into_iter().flatten() {
+        out.entry(id).or_default().push(p);
+    }
+    out
+}
+
+/// The object most views show at `p`, if every view that sees `p` (at least two) shows an object.
+fn label_of(views: &[TrainView], p: DVec3) -> Option<u16> {
+    let mut votes: [(u16, u8); 8] = [(0, 0); 8];
+    let mut seen = 0;
+    for v in views {
+        let Some(id) = id_at(v, p) else { continue };
+        if id == 0 {
+            return None;
+        }
+        seen += 1;
+        if let Some(slot) = votes.iter_mut().find(|s| s.0 == id || s.1 == 0) {
+            slot.0 = id;
+            slot.1 += 1;
+        }
+    }
+    (seen >= 2).then(|| votes.iter().max_by_key(|s| s.1).map(|s| s.0))?
+}
+
+/// Instance id of the pixel `p` projects to, `None` outside the image or behind the camera.
+fn id_at(v: &TrainView, p: DVec3) -> Option<u16> {
+    let (x, y, _) = v.camera.project(p)?;
+    let (xi, yi) = (x.round(), y.round());
+    if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
+        return None;
+    }
+    Some(v.ids[yi as usize * v.width + xi as usize])
+}
+
+/// Radial profile of one object's hull about a vertical axis, in slices of [`VOXEL_M`].
+#[derive(Clone, Debug, Serialize)]
+pub struct Profile {
+    /// Axis position (x, y).
+    pub axis: [f64; 2],
+    /// Height of the bottom of slice 0.
+    pub z0: f64,
+    /// Median over sectors of the largest radius in each sector, per slice (0 for an empty slice).
+    pub radius: Vec<f64>,
+    /// Horizontal drift of the slice centres per unit height (0 for a vertical axis).
+    pub lean: f64,
+}
+
+impl Profile {
+    /// Profile of `voxels` (world positions of one object's hull voxels).
+    pub fn of(voxels: &[DVec3]) -> Option<Self> {
+        if voxels.len() < MIN_VOXELS {
+            return None;
+        }
+        let z0 = voxels.iter().map(|p| p.z).fold(f64::INFINITY, f64::min) - 0.5 * VOXEL_M;
+        let top = voxels.iter().map(|p| p.z).fold(f64::NEG_INFINITY, f64::max);
+        let slices = (((top - z0) / VOXEL_M).floor() as usize) + 1;
+        let mut by_slice: Vec<Vec<DVec2>> = vec![Vec::new(); slices];
+        for p in voxels {
+            let k = (((p.z - z0) / VOXEL_M).floor() as usize).min(slices - 1);
+            by_slice[k].push(p.truncate());
+        }
+        let lower = slices.div_ceil(5);
+        let base: Vec<DVec2> = by_slice[..lower].concat();
+        let axis = median_point(&base)?;
+        let upper_centre = median_point(&by_slice[slices - slices.div_ceil(3)..].concat())?;
+        let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
+        let lean = (upper_centre - axis).length() / (0.6 * height);
+        let radius = by_slice.iter().map(|s| sector_radius(s, axis)).collect();
+        Some(Self {
+            axis: axis.to_array(),
+            z0,
+            radius,
+            lean,
+        })
+    }
+
+    /// Index of the rim slice: the highest slice below the roof. The roof is the run of top slices
+    /// each narrower by at least `slope · ROOF_RUN · VOXEL_M` than the slice `ROOF_RUN` below it.
+    pub fn rim_slice(&self, slope: f64) -> usize {
+        let drop = slope * ROOF_RUN as f64 * VOXEL_M;
+        let mut k = self.radius.len() - 1;
+        while k >= ROOF_RUN && self.radius[k] < self.radius[k - ROOF_RUN] - drop {
+            k -= 1;
+        }
+        k
+    }
+
+    /// Height of the hull's top above the lowest slice within a voxel of the widest one, over the
+    /// widest radius (see [`MAX_BOWL_CROWN`]).
+    pub fn crown(&self) -> f64 {
+        let widest = self.radius.iter().fold(0.0f64, |a, &b| a.max(b));
+        let first = self
+            .radius
+            .iter()
+            .position(|&r| r >= widest - 1.5 * VOXEL_M)
+            .unwrap_or(0);
+        (self.radius.len() - first) as f64 * VOXEL_M / widest.max(VOXEL_M)
+    }
+
+    /// Height of the top of slice `k`.
+    pub fn slice_top(&self, k: usize) -> f64 {
+        self.z0 + (k + 1) as f64 * VOXEL_M
+    }
+}
+
+/// Component-wise median of points.
+fn median_point(pts: &[DVec2]) -> Option<DVec2> {
+    if pts.is_empty() {
+        return None;
+    }
+    let med = |f: fn(&DVec2) -> f64| {
+        let mut v: Vec<f64> = pts.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    Some(DVec2::new(med(|p| p.x), med(|p| p.y)))
+}
+
+/// Median over [`SECTORS`] angular sectors of the largest distance from `axis` (empty sectors count
+/// as 0), plus half a voxel for the voxel's own extent.
+fn sector_radius(pts: &[DVec2], axis: DVec2) -> f64 {
+    if pts.is_empty() {
+        return 0.0;
+    }
+    let mut far = [0.0f64; SECTORS];
+    for p in pts {
+        let d = *p - axis;
+        let a = d.y.atan2(d.x) + std::f64::consts::PI;
+        let s = ((a / std::f64::consts::TAU * SECTORS as f64) as usize).min(SECTORS - 1);
+        far[s] = far[s].max(d.length());
+    }
+    far.sort_by(f64::total_cmp);
+    0.5 * (far[SECTORS / 2 - 1] + far[SECTORS / 2]) + 0.5 * VOXEL_M
+}
+
+/// Why an object's top is not carved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Closed {
+    /// Too few hull voxels for a profile.
+    TooSmall,
+    /// The axis leans: the profile about a vertical axis says nothing about the opening.
+    Leaning,
+    /// The top is narrower than [`MIN_RIM_RADIUS_M`] (a bottle's neck) or narrower than the body
+    /// below it (a dome, a sphere, a wine glass's bowl, an upturned tapered tumbler).
+    NarrowTop,
+    /// Neither a straight-walled vessel nor a bowl: the hull rises higher above its widest slice than
+    /// a roof over a rim would ([`Profile::crown`] above [`MAX_BOWL_CROWN`]), as over a spheroid.
+    RoundTop,
+    /// Another object rests on it.
+    Supports,
+    /// It rests on another object (see [`ON_TABLE_M`]).
+    Stacked,
+}
+
+/// The carved region of an open vessel (world frame, z up).
+#[derive(Clone, Debug, Serialize)]
+pub struct Opening {
+    pub profile: Profile,
+    /// Height of the rim: everything above it is carved.
+    pub rim_z: f64,
+    /// Radius of the rim slice.
+    pub rim_radius: f64,
+    /// Below this height nothing is carved (the base).
+    pub floor_z: f64,
+}
+
+impl Opening {
+    /// Whether `p` lies in the carved region: above the rim within the rim's radius plus a margin,
+    /// or above the floor and more than [`WALL_MARGIN_M`] inside the profile.
+    pub fn carves(&self, p: [f32; 3]) -> bool {
+        let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        let r = (p.truncate() - DVec2::from_array(self.profile.axis)).length();
+        if p.z > self.rim_z {
+            return r < self.rim_radius + WALL_MARGIN_M && p.z < self.rim_z + 4.0 * self.rim_radius;
+        }
+        if p.z < self.floor_z {
+            return false;
+        }
+        let k = ((p.z - self.profile.z0) / VOXEL_M).floor();
+        if k < 0.0 {
+            return false;
+        }
+        let k = (k as usize).min(self.profile.radius.len() - 1);
+        r < self.profile.radius[k] - WALL_MARGIN_M
+    }
+}
+
+/// What [`classify`] decided for one object.
+#[derive(Clone, Debug, Serialize)]
+pub struct VesselTop {
+    pub object_id: u16,
+    pub voxels: usize,
+    #[serde(flatten)]
+    pub top: Top,
+}
+
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "top", rename_all = "snake_case")]
+pub enum Top {
+    Open { rim_z: f64, rim_radius: f64 },
+    Closed { because: Closed },
+}
+
+/// Steepest elevation of the cameras over the point `at` (radians).
+pub fn max_elevation(cameras: &[Camera], at: DVec3) -> f64 {
+    cameras
+        .iter()
+        .map(|c| {
+            let d = c.center() - at;
+            (d.z / d.length()).asin()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Decides, for every object of the hull, whether its top is an opening; returns the openings and the
+/// decision per object (for `run.json`).
+pub fn classify(
+    hull: &BTreeMap<u16, Vec<DVec3>>,
+    cameras: &[Camera],
+) -> (Vec<Opening>, Vec<VesselTop>) {
+    let mut openings = Vec::new();
+    let mut report = Vec::new();
+    for (&id, voxels) in hull {
+        let top = match open_top(id, voxels, hull, cameras) {
+            Ok(o) => {
+                let t = Top::Open {
+                    rim_z: o.rim_z,
+                    rim_radius: o.rim_radius,
+                };
+                openings.push(o);
+                t
+            }
+            Err(because) => Top::Closed { because },
+        };
+        report.push(VesselTop {
+            object_id: id,
+            voxels: voxels.len(),
+            top,
+        });
+    }
+    (openings, report)
+}
+
+/// The opening of object `id`, or why it has none.
+fn open_top(
+    id: u16,
+    voxels: &[DVec3],
+    hull: &BTreeMap<u16, Vec<DVec3>>,
+    cameras: &[Camera],
+) -> Result<Opening, Closed> {
+    let profile = Profile::of(voxels).ok_or(Closed::TooSmall)?;
+    if profile.lean > MAX_LEAN {
+        return Err(Closed::Leaning);
+    }
+    if profile.z0 > ON_TABLE_M {
+        return Err(Closed::Stacked);
+    }
+    let axis = DVec2::from_array(profile.axis);
+    let centre = axis.extend(profile.z0 + 0.5 * profile.radius.len() as f64 * VOXEL_M);
+    let elevation = max_elevation(cameras, centre).max(0.1);
+    let rim = profile.rim_slice(0.5 / elevation.tan());
+    let rim_radius = profile.radius[rim.saturating_sub(2)..=rim]
+        .iter()
+        .fold(0.0f64, |a, &b| a.max(b));
+    let body = &profile.radius[(0.4 * rim as f64) as usize..=rim];
+    let widest = body.iter().fold(0.0f64, |a, &b| a.max(b));
+    let narrowest = body.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+    let rim_height = (rim + 1) as f64 * VOXEL_M;
+    if rim_radius < MIN_RIM_RADIUS_M || rim_radius + RIM_TOLERANCE_M < widest {
+        return Err(Closed::NarrowTop);
+    }
+    let straight = narrowest >= rim_radius - MAX_TAPER_M && rim_height >= MIN_ASPECT * rim_radius;
+    if !straight && profile.crown() > MAX_BOWL_CROWN {
+        return Err(Closed::RoundTop);
+    }
+    let rim_z = profile.slice_top(rim);
+    // Above a flat rim the hull is only the roof, at most `R tan e` high (the silhouette planes meet
+    // over the axis); a bottle's shoulder is followed by a neck that stands higher.
+    let above = (profile.radius.len() - 1 - rim) as f64 * VOXEL_M;
+    if above > ROOF_SLACK * rim_radius * elevation.tan() + 2.0 * VOXEL_M {
+        return Err(Closed::NarrowTop);
+    }
+    // Voxels of another object above the rim, inside the rim's circle: more than a few means it rests
+    // there (a stray voxel or two come from label noise at occlusions).
+    let supports = hull.iter().filter(|(o, _)| **o != id).any(|(_, vs)| {
+        vs.iter()
+            .filter(|p| p.z > rim_z && (p.truncate() - axis).length() < rim_radius)
+            .count()
+            > MIN_VOXELS / 4
+    });
+    if supports {
+        return Err(Closed::Supports);
+    }
+    Ok(Opening {
+        floor_z: profile.z0 + FLOOR_M,
+        rim_z,
+        rim_radius,
+        profile,
+    })
+}
