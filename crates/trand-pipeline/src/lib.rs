@@ -10,6 +10,7 @@
 //!   refinement.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
+pub mod contact;
 pub mod detect;
 pub mod openings;
 pub mod outputs;

@@ -76,9 +76,11 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
 
 /// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
 /// count, the largest surfel displacement and the meshing and simulation times.
+#[allow(clippy::too_many_arguments)]
 pub fn simulate(
     surfels: &mut Surfels,
     objects: &[(u16, usize)],
+    movable: &[u16],
     scale: SceneScale,
     opts: &UpdateOptions,
     settings: &RenderSettings,
@@ -170,6 +172,7 @@ pub fn simulate(
             _ => None,
         };
         let before: Vec<[f32; 3]> = surfels.means.clone();
+        let before_quats = surfels.quats.clone();
         for (surfel, particle) in set.surfel_particles() {
             let s = surfel as usize;
             surfels.means[s] = pos[particle];
@@ -177,8 +180,14 @@ pub fn simulate(
                 surfels.quats[s] = turn(r[particle], surfels.quats[s]);
             }
         }
-        if opts.motion == SurfelMotion::RigidPerObject {
-            for (_, _, idx) in &members {
+        for (id, _, idx) in &members {
+            if !movable.contains(id) {
+                // Nothing it touches has changed (crate::contact): it keeps its pose.
+                for &i in idx {
+                    surfels.means[i as usize] = before[i as usize];
+                    surfels.quats[i as usize] = before_quats[i as usize];
+                }
+            } else if opts.motion == SurfelMotion::RigidPerObject {
                 rigid_fit(surfels, &before, idx);
             }
         }
@@ -210,9 +219,11 @@ pub fn simulate(
     ))
 }
 
-/// Replaces the simulated positions of the surfels `idx` (currently in `surfels.means`, previously at
-/// `before`) by the rigid motion that fits them best in the least-squares sense (Kabsch): `R` is the
-/// polar rotation of `Σ (q − q̄)(p − p̄)ᵀ`, `t = q̄ − R p̄`; the surfels' orientations turn by `R` too.
+/// Moves the surfels `idx` (simulated positions in `surfels.means`, previous ones in `before`) by
+/// the rigid motion that fits them best in the least-squares sense (Kabsch): `R` is the polar
+/// rotation of `Σ (q − q̄)(p − p̄)ᵀ`, `t = q̄ − R p̄`; the surfels' orientations turn by `R` too.
+/// An object the fit sank below the table is lifted back onto it: the paper's soft material sags
+/// under gravity (by up to a third of an object's height), which lowers the fitted centroid.
 fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
     if idx.len() < 3 {
         return;
@@ -240,6 +251,15 @@ fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
         let p = r * (v(before[i]) - pbar) + qbar;
         surfels.means[i] = [p.x as f32, p.y as f32, p.z as f32];
         surfels.quats[i] = turn(rf, surfels.quats[i]);
+    }
+    let lowest = idx
+        .iter()
+        .map(|&i| surfels.means[i as usize][2])
+        .fold(f32::INFINITY, f32::min);
+    if lowest < 0.0 {
+        for &i in idx {
+            surfels.means[i as usize][2] -= lowest;
+        }
     }
 }
 

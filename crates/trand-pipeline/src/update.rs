@@ -141,6 +141,8 @@ pub struct Update {
     /// Which detection rule was used (`Auto` resolved).
     pub identity: Identity,
     pub relocations: Vec<Relocation>,
+    /// Objects in contact (transitively) with a removed one: the only ones the simulation may move.
+    pub movable: Vec<u16>,
     pub mesh: Option<trand_io::Mesh>,
     pub num_particles: usize,
     pub max_displacement_m: f32,
@@ -203,6 +205,10 @@ pub fn update(
             .map(|m| m.object_id)
             .collect(),
     };
+    let movable = crate::contact::may_move(
+        &crate::contact::object_centres(&surfels, channels),
+        &removed,
+    );
     let before = surfels.len();
     for &id in &removed {
         let c = channels
@@ -227,8 +233,15 @@ pub fn update(
     let unmoved = relocalising.then(|| surfels.clone());
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
-            let (m, n, d, a, b) =
-                simulate(&mut surfels, &remaining, scale, opts, &settings, progress)?;
+            let (m, n, d, a, b) = simulate(
+                &mut surfels,
+                &remaining,
+                &movable,
+                scale,
+                opts,
+                &settings,
+                progress,
+            )?;
             (Some(m), n, d, a, b)
         } else {
             (None, 0, 0.0, 0.0, 0.0)
@@ -322,6 +335,7 @@ pub fn update(
         deleted_surfels: deleted,
         identity,
         relocations,
+        movable,
         mesh,
         num_particles,
         max_displacement_m: max_disp,

@@ -287,6 +287,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "identity": up.identity,
         "relocalise": opts.relocalise,
         "relocations": up.relocations,
+        "movable": up.movable,
         "deleted_surfels": up.deleted_surfels,
         "num_particles": up.num_particles,
         "max_surfel_displacement_m": up.max_displacement_m,

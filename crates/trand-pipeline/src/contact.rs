@@ -1,0 +1,127 @@
+//! Which objects can move when some are taken away: the contact closure of the removed ones.
+//!
+//! An object at rest stays at rest unless something it touches changes. So the objects that may move
+//! at t = 1 are those touching a removed object (it supported them, or they leaned on it), then those
+//! touching one of these, and so on. Every other object keeps its t = 0 pose exactly. This matters
+//! because the simulation's material (the paper's, very soft) sags and slides under gravity even where
+//! nothing happens: left to the simulation, objects nobody touched drift by centimetres.
+//!
+//! Two objects touch when some pair of their surfels' centres lies within [`CONTACT_M`]. Surfels of an
+//! object are those whose probability of its channel exceeds ½ (as for deletion).
+
+use std::collections::HashMap;
+
+use trand_core::Surfels;
+
+use crate::simulate::channel_probs;
+
+/// Largest centre distance of two surfels of objects in contact (m): surfels sit on the surfaces,
+/// a few millimetres apart, and glass walls in contact are a wall's thickness apart at most.
+pub const CONTACT_M: f32 = 0.008;
+
+/// Centres of the surfels of each `(id, channel)` object.
+pub fn object_centres(s: &Surfels, objects: &[(u16, usize)]) -> Vec<(u16, Vec<[f32; 3]>)> {
+    objects
+        .iter()
+        .map(|&(id, c)| {
+            let p = channel_probs(s, c);
+            let pts = (0..s.len())
+                .filter(|&i| p[i] > 0.5)
+                .map(|i| s.means[i])
+                .collect();
+            (id, pts)
+        })
+        .collect()
+}
+
+/// Ids of the objects that may move: the transitive closure of "touches" from `removed`.
+pub fn may_move(objects: &[(u16, Vec<[f32; 3]>)], removed: &[u16]) -> Vec<u16> {
+    let grids: Vec<Grid> = objects.iter().map(|(_, p)| Grid::new(p)).collect();
+    let mut moving: Vec<bool> = objects.iter().map(|(id, _)| removed.contains(id)).collect();
+    let mut frontier: Vec<usize> = (0..objects.len()).filter(|&i| moving[i]).collect();
+    while let Some(a) = frontier.pop() {
+        for b in 0..objects.len() {
+            if !moving[b] && grids[b].touches(&objects[a].1) {
+                moving[b] = true;
+                frontier.push(b);
+            }
+        }
+    }
+    objects
+        .iter()
+        .zip(&moving)
+        .filter(|(o, m)| **m && !removed.contains(&o.0))
+        .map(|(o, _)| o.0)
+        .collect()
+}
+
+/// Points hashed into cubic cells of edge [`CONTACT_M`].
+struct Grid<'a> {
+    cells: HashMap<[i32; 3], Vec<&'a [f32; 3]>>,
+}
+
+fn cell(p: &[f32; 3]) -> [i32; 3] {
+    p.map(|x| (x / CONTACT_M).floor() as i32)
+}
+
+impl<'a> Grid<'a> {
+    fn new(points: &'a [[f32; 3]]) -> Self {
+        let mut cells: HashMap<[i32; 3], Vec<&[f32; 3]>> = HashMap::new();
+        for p in points {
+            cells.entry(cell(p)).or_default().push(p);
+        }
+        Self { cells }
+    }
+
+    /// Whether any of `points` lies within [`CONTACT_M`] of a point of the grid.
+    fn touches(&self, points: &[[f32; 3]]) -> bool {
+        let r2 = CONTACT_M * CONTACT_M;
+        points.iter().any(|p| {
+            let c = cell(p);
+            (-1..=1).any(|dx| {
+                (-1..=1).any(|dy| {
+                    (-1..=1).any(|dz| {
+                        self.cells
+                            .get(&[c[0] + dx, c[1] + dy, c[2] + dz])
+                            .is_some_and(|v| v.iter().any(|q| dist2(p, q) < r2))
+                    })
+                })
+            })
+        })
+    }
+}
+
+fn dist2(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn column(x: f32, n: usize) -> Vec<[f32; 3]> {
+        (0..n).map(|i| [x, 0.0, i as f32 * 0.005]).collect()
+    }
+
+    #[test]
+    fn only_objects_in_a_chain_of_contacts_with_the_removed_one_may_move() {
+        // 1 removed; 2 touches 1 (3 mm); 3 touches 2 (5 mm); 4 is 5 cm from everything.
+        let objects = vec![
+            (1, column(0.0, 10)),
+            (2, column(0.003, 10)),
+            (3, column(0.008, 10)),
+            (4, column(0.058, 10)),
+        ];
+        assert_eq!(may_move(&objects, &[1]), vec![2, 3]);
+        assert_eq!(may_move(&objects, &[4]), Vec::<u16>::new());
+        assert_eq!(may_move(&objects, &[]), Vec::<u16>::new());
+    }
+
+    #[test]
+    fn contact_is_decided_by_distance_not_by_cell() {
+        // Neighbouring cells, but 9 mm apart: no contact; 7 mm: contact.
+        let a = vec![[0.0079, 0.0, 0.0]];
+        assert!(!Grid::new(&a).touches(&[[0.0169, 0.0, 0.0]]));
+        assert!(Grid::new(&a).touches(&[[0.0149, 0.0, 0.0]]));
+    }
+}
