@@ -67,6 +67,11 @@ pub const MAX_LEAN: f64 = 0.18;
 /// The hull above a rim may stand this many times the roof's height (`R tan e`) before it counts as
 /// more than a roof: the polygonal roof of six views is a little higher than the cone of many.
 const ROOF_SLACK: f64 = 1.2;
+/// A waist below the widest slice narrower than this fraction of it is a stem.
+pub const MAX_STEM_RATIO: f64 = 0.35;
+/// A stemmed cup's rim is at least this fraction of its widest slice (a wine glass's bowl closes in
+/// towards the rim; an upturned one shows its foot, far narrower than its bowl, on top).
+pub const MIN_CUP_RIM_RATIO: f64 = 0.75;
 /// Angular sectors of the radial profile; the median over sectors ignores a handle.
 const SECTORS: usize = 16;
 /// Slices (of [`VOXEL_M`]) compared by the roof test.
@@ -249,6 +254,7 @@ pub enum Closed {
 /// The carved region of an open vessel (world frame, z up).
 #[derive(Clone, Debug, Serialize)]
 pub struct Opening {
+    pub shape: Shape,
     pub profile: Profile,
     /// Height of the rim: everything above it is carved.
     pub rim_z: f64,
@@ -291,8 +297,14 @@ pub struct VesselTop {
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "top", rename_all = "snake_case")]
 pub enum Top {
-    Open { rim_z: f64, rim_radius: f64 },
-    Closed { because: Closed },
+    Open {
+        shape: Shape,
+        rim_z: f64,
+        rim_radius: f64,
+    },
+    Closed {
+        because: Closed,
+    },
 }
 
 /// Steepest elevation of the cameras over the point `at` (radians).
@@ -318,6 +330,7 @@ pub fn classify(
         let top = match open_top(id, voxels, hull, cameras) {
             Ok(o) => {
                 let t = Top::Open {
+                    shape: o.shape,
                     rim_z: o.rim_z,
                     rim_radius: o.rim_radius,
                 };
@@ -333,6 +346,54 @@ pub fn classify(
         });
     }
     (openings, report)
+}
+
+/// The vessels whose opening is carved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Shape {
+    /// Walls within [`MAX_TAPER_M`] of the rim's radius, at least [`MIN_ASPECT`] radii high: tumblers,
+    /// mugs (the sector median ignores the handle).
+    Straight,
+    /// Widest at the rim, with a crown of at most [`MAX_BOWL_CROWN`].
+    Bowl,
+    /// A cup on a stem: below the widest slice the profile narrows to under [`MAX_STEM_RATIO`] of it,
+    /// and the rim is at least [`MIN_CUP_RIM_RATIO`] of the widest (wine glasses).
+    Stemmed,
+}
+
+/// Which open vessel the profile below the rim slice `rim` is, or why it is closed.
+fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape, Closed> {
+    let r = &profile.radius[..=rim];
+    let (widest_at, widest) = r
+        .iter()
+        .enumerate()
+        .fold((0, 0.0f64), |a, (k, &v)| if v > a.1 { (k, v) } else { a });
+    let above_foot = (0.15 * widest_at as f64) as usize;
+    let waist = r[above_foot..widest_at.max(above_foot + 1)]
+        .iter()
+        .fold(f64::INFINITY, |a, &b| a.min(b));
+    if waist < MAX_STEM_RATIO * widest {
+        return if rim_radius >= MIN_CUP_RIM_RATIO * widest {
+            Ok(Shape::Stemmed)
+        } else {
+            Err(Closed::NarrowTop)
+        };
+    }
+    let body = &r[(0.4 * rim as f64) as usize..];
+    let body_widest = body.iter().fold(0.0f64, |a, &b| a.max(b));
+    if rim_radius + RIM_TOLERANCE_M < body_widest {
+        return Err(Closed::NarrowTop);
+    }
+    let narrowest = body.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+    let rim_height = (rim + 1) as f64 * VOXEL_M;
+    if narrowest >= rim_radius - MAX_TAPER_M && rim_height >= MIN_ASPECT * rim_radius {
+        Ok(Shape::Straight)
+    } else if profile.crown() <= MAX_BOWL_CROWN {
+        Ok(Shape::Bowl)
+    } else {
+        Err(Closed::RoundTop)
+    }
 }
 
 /// The opening of object `id`, or why it has none.
@@ -356,17 +417,10 @@ fn open_top(
     let rim_radius = profile.radius[rim.saturating_sub(2)..=rim]
         .iter()
         .fold(0.0f64, |a, &b| a.max(b));
-    let body = &profile.radius[(0.4 * rim as f64) as usize..=rim];
-    let widest = body.iter().fold(0.0f64, |a, &b| a.max(b));
-    let narrowest = body.iter().fold(f64::INFINITY, |a, &b| a.min(b));
-    let rim_height = (rim + 1) as f64 * VOXEL_M;
-    if rim_radius < MIN_RIM_RADIUS_M || rim_radius + RIM_TOLERANCE_M < widest {
+    if rim_radius < MIN_RIM_RADIUS_M {
         return Err(Closed::NarrowTop);
     }
-    let straight = narrowest >= rim_radius - MAX_TAPER_M && rim_height >= MIN_ASPECT * rim_radius;
-    if !straight && profile.crown() > MAX_BOWL_CROWN {
-        return Err(Closed::RoundTop);
-    }
+    let shape = vessel_shape(&profile, rim, rim_radius)?;
     let rim_z = profile.slice_top(rim);
     // Above a flat rim the hull is only the roof, at most `R tan e` high (the silhouette planes meet
     // over the axis); a bottle's shoulder is followed by a neck that stands higher.
@@ -386,6 +440,7 @@ fn open_top(
         return Err(Closed::Supports);
     }
     Ok(Opening {
+        shape,
         floor_z: profile.z0 + FLOOR_M,
         rim_z,
         rim_radius,
