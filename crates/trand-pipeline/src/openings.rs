@@ -49,7 +49,8 @@ pub const ON_TABLE_M: f64 = 0.004;
 /// The rim may be this much narrower than the widest slice of the upper body and still count as the
 /// widest (m): about one voxel of hull noise on each side.
 pub const RIM_TOLERANCE_M: f64 = 0.0035;
-/// The upper body may narrow this much below the rim (m): a tumbler's taper plus hull noise.
+/// The wall of a straight vessel may narrow this much below the rim (m): a tumbler's taper plus
+/// hull noise.
 pub const MAX_TAPER_M: f64 = 0.008;
 /// A straight-walled vessel's rim stands at least this many times its radius high; lower or
 /// narrowing bodies are judged by their crown ([`MAX_BOWL_CROWN`]).
@@ -61,6 +62,9 @@ pub const MIN_ASPECT: f64 = 1.5;
 /// `c/a` of 0.7–1). The crown also counts the band within a voxel of the widest slice, which adds
 /// about 0.2 to both; the threshold sits between the two.
 pub const MAX_BOWL_CROWN: f64 = 1.25;
+/// A bowl flares: its rim is at least this many times wider than its foot (the lowest fifth of its
+/// height). An upturned bowl, a dome, narrows from the table up.
+pub const MIN_BOWL_FLARE: f64 = 1.1;
 /// Largest lean of the axis (horizontal drift of the slice centres per unit height) of an upright
 /// object: tan 10°.
 pub const MAX_LEAN: f64 = 0.18;
@@ -355,7 +359,8 @@ pub enum Shape {
     /// Walls within [`MAX_TAPER_M`] of the rim's radius, at least [`MIN_ASPECT`] radii high: tumblers,
     /// mugs (the sector median ignores the handle).
     Straight,
-    /// Widest at the rim, with a crown of at most [`MAX_BOWL_CROWN`].
+    /// Widest at the rim, flaring from its foot by at least [`MIN_BOWL_FLARE`], with a crown of at
+    /// most [`MAX_BOWL_CROWN`].
     Bowl,
     /// A cup on a stem: below the widest slice the profile narrows to under [`MAX_STEM_RATIO`] of it,
     /// and the rim is at least [`MIN_CUP_RIM_RATIO`] of the widest (wine glasses).
@@ -380,20 +385,31 @@ fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape,
             Err(Closed::NarrowTop)
         };
     }
-    let body = &r[(0.4 * rim as f64) as usize..];
-    let body_widest = body.iter().fold(0.0f64, |a, &b| a.max(b));
-    if rim_radius + RIM_TOLERANCE_M < body_widest {
+    let upper_widest = r[(0.4 * rim as f64) as usize..]
+        .iter()
+        .fold(0.0f64, |a, &b| a.max(b));
+    if rim_radius + RIM_TOLERANCE_M < upper_widest {
         return Err(Closed::NarrowTop);
     }
-    let narrowest = body.iter().fold(f64::INFINITY, |a, &b| a.min(b));
+    // The whole wall above the base's rounding: a sphere's hull is a barrel over most of its height.
+    let narrowest = r[(0.1 * rim as f64) as usize..]
+        .iter()
+        .fold(f64::INFINITY, |a, &b| a.min(b));
     let rim_height = (rim + 1) as f64 * VOXEL_M;
     if narrowest >= rim_radius - MAX_TAPER_M && rim_height >= MIN_ASPECT * rim_radius {
         Ok(Shape::Straight)
-    } else if profile.crown() <= MAX_BOWL_CROWN {
+    } else if profile.crown() <= MAX_BOWL_CROWN && rim_radius >= MIN_BOWL_FLARE * foot_radius(r) {
         Ok(Shape::Bowl)
     } else {
         Err(Closed::RoundTop)
     }
+}
+
+/// Widest radius of the lowest fifth of the slices `r`.
+fn foot_radius(r: &[f64]) -> f64 {
+    r[..r.len().div_ceil(5)]
+        .iter()
+        .fold(0.0f64, |a, &b| a.max(b))
 }
 
 /// The opening of object `id`, or why it has none.

@@ -274,6 +274,42 @@ mod tests {
     use super::*;
     use trand_core::surfels::Surfel;
 
+    fn column(n: u32) -> (Surfels, Vec<[f32; 3]>) {
+        let mut s = Surfels::new(0, 2).unwrap();
+        let before: Vec<[f32; 3]> = (0..n).map(|i| [0.0, 0.0, 0.002 * i as f32]).collect();
+        for p in &before {
+            s.push(&Surfel {
+                mean: *p,
+                log_scale: [-5.0; 2],
+                quat: [1.0, 0.0, 0.0, 0.0],
+                opacity_logit: 0.0,
+                sh_dc: [0.0; 3],
+                mask_dc: [0.0; 3],
+                obj_logits: vec![],
+            });
+        }
+        (s, before)
+    }
+
+    #[test]
+    fn rigid_fit_lifts_an_object_the_fit_sank_below_the_table_back_onto_it() {
+        let (mut s, before) = column(20);
+        // Sagged: squashed to half its height and moved 1 cm sideways; the fit lowers the centroid.
+        for (m, b) in s.means.iter_mut().zip(&before) {
+            *m = [0.01, 0.0, 0.5 * b[2] - 0.01];
+        }
+        let idx: Vec<u32> = (0..20).collect();
+        rigid_fit(&mut s, &before, &idx);
+        let lowest = s.means.iter().map(|m| m[2]).fold(f32::INFINITY, f32::min);
+        assert!(lowest.abs() < 1e-6, "lowest point at {lowest}");
+        for (m, b) in s.means.iter().zip(&before) {
+            assert!(
+                (m[0] - 0.01).abs() < 1e-4 && (m[2] - b[2]).abs() < 1e-4,
+                "{m:?} vs {b:?}"
+            );
+        }
+    }
+
     #[test]
     fn rigid_fit_recovers_a_known_rotation_and_translation_from_noisy_positions() {
         let mut s = Surfels::new(0, 2).unwrap();
@@ -293,7 +329,7 @@ mod tests {
             });
         }
         let r = Quat::from_axis_angle(glam::Vec3::new(1.0, 0.5, 0.2).normalize(), 0.6);
-        let t = glam::Vec3::new(0.02, -0.01, -0.05);
+        let t = glam::Vec3::new(0.02, -0.01, 0.05);
         // Simulated positions: the rigid motion plus a ±0.5 mm wobble (the soft material's sag).
         for (i, m) in s.means.iter_mut().enumerate() {
             let q = r * glam::Vec3::from_array(before[i]) + t;

@@ -117,7 +117,7 @@ impl Default for UpdateOptions {
             identity: Identity::Auto,
             centroid_weight: 0.5,
             mesh_depth: MeshDepth::Expected,
-            motion: SurfelMotion::Translate,
+            motion: SurfelMotion::RigidPerObject,
             fill: InteriorFill::None,
             ring_elevations_deg: vec![20.0, 50.0],
             ring_azimuths: 8,

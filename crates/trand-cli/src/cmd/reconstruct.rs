@@ -12,6 +12,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, Sequence, read_sequence_with};
+use trand_pipeline::reconstruct::OpeningPrior;
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, reconstruct};
 
 #[derive(clap::Args)]
@@ -41,6 +42,10 @@ pub struct Args {
     /// Initialisation: visual-hull (default) or slab (the authors' random slab).
     #[arg(long, value_parser = parse_init)]
     pub init: Option<InitMode>,
+    /// Open vessels: carve (default: keep surfels out of the openings of upright tumblers, mugs,
+    /// bowls and wine glasses, so their inside is fitted instead of a lid) or off.
+    #[arg(long, value_parser = parse_openings)]
+    pub openings: Option<OpeningPrior>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -49,6 +54,14 @@ pub struct Args {
     pub resume: bool,
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u32,
+}
+
+fn parse_openings(s: &str) -> Result<OpeningPrior, String> {
+    match s {
+        "carve" => Ok(OpeningPrior::Carve),
+        "off" => Ok(OpeningPrior::Off),
+        _ => Err(format!("unknown opening prior `{s}` (carve, off)")),
+    }
 }
 
 fn parse_method(s: &str) -> Result<Method, String> {
@@ -105,6 +118,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(k) = a.objects {
         o.num_objects = k;
+    }
+    if let Some(p) = a.openings {
+        o.openings = p;
     }
     Ok(o)
 }
@@ -213,6 +229,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
         "object_channels": rec.channels,
+        "vessel_tops": rec.vessel_tops,
         "timings": {
             "preprocess_s": rec.preprocess_s,
             "optimise_s": rec.optimise_s,
