@@ -164,9 +164,11 @@ impl Profile {
         let lower = slices.div_ceil(5);
         let base: Vec<DVec2> = by_slice[..lower].concat();
         let axis = median_point(&base)?;
-        let upper_centre = median_point(&by_slice[slices - slices.div_ceil(3)..].concat())?;
+        // The middle fifth, below any roof (whose voxels lean towards the cameras off the rig's axis).
+        let middle = by_slice[2 * slices / 5..(3 * slices / 5).max(2 * slices / 5 + 1)].concat();
+        let middle_centre = median_point(&middle).unwrap_or(axis);
         let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
-        let lean = (upper_centre - axis).length() / (0.6 * height);
+        let lean = (middle_centre - axis).length() / (0.4 * height);
         let radius = by_slice.iter().map(|s| sector_radius(s, axis)).collect();
         Some(Self {
             axis: axis.to_array(),
@@ -370,10 +372,13 @@ pub enum Shape {
 /// Which open vessel the profile below the rim slice `rim` is, or why it is closed.
 fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape, Closed> {
     let r = &profile.radius[..=rim];
-    let (widest_at, widest) = r
-        .iter()
-        .enumerate()
-        .fold((0, 0.0f64), |a, (k, &v)| if v > a.1 { (k, v) } else { a });
+    // The cup's widest slice, in the upper half (a wine glass's foot may be as wide as its bowl).
+    let half = r.len() / 2;
+    let (widest_at, widest) =
+        r[half..].iter().enumerate().fold(
+            (half, 0.0f64),
+            |a, (k, &v)| if v > a.1 { (half + k, v) } else { a },
+        );
     let above_foot = (0.15 * widest_at as f64) as usize;
     let waist = r[above_foot..widest_at.max(above_foot + 1)]
         .iter()
