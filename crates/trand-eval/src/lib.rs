@@ -3,11 +3,13 @@
 //! * [`metrics`]: MAE, RMSE and threshold accuracies of predicted depth on GT object pixels, pooled per
 //!   sequence ([`evaluate`]), averaged over sequences ([`mean_over_sequences`]), as a Markdown [`table`].
 //! * [`run`]: the `trand eval` contract (a run folder of `.npy` depths → `metrics.json`).
+//! * [`objects`]: the same metrics per GT object and pooled per object kind (`bowl (upright)`, …).
 //! * [`matching`]: mask [`iou`] and rectangular [`hungarian`] assignment, for matching objects across
 //!   the scene change.
 
 pub mod matching;
 pub mod metrics;
+pub mod objects;
 pub mod run;
 
 pub use matching::{hungarian, iou};
@@ -15,4 +17,10 @@ pub use metrics::{
     Counts, EvalError, Metrics, PIXEL_SET_NOTE, THRESHOLDS_M, ViewCounts, evaluate,
     mean_over_sequences, table,
 };
-pub use run::{RunEvalError, evaluate_run, prediction_path, run_state};
+pub use objects::{
+    LabelRow, ObjectInfo, PerObject, kind_label, label_table, object_table, per_object,
+    pool_by_label, read_object_info,
+};
+pub use run::{
+    RunEvalError, RunEvaluation, evaluate_run, evaluate_run_detailed, prediction_path, run_state,
+};

@@ -56,7 +56,8 @@ pub struct Counts {
 }
 
 impl Counts {
-    fn add(&mut self, o: &Counts) {
+    /// Adds another pool's sums.
+    pub fn add(&mut self, o: &Counts) {
         self.pixels += o.pixels;
         self.uncovered += o.uncovered;
         self.abs_sum += o.abs_sum;
@@ -99,7 +100,8 @@ pub struct Metrics {
 }
 
 impl Metrics {
-    fn from_counts(total: &Counts, per_view: Vec<ViewCounts>) -> Self {
+    /// The figures of pooled sums (NaN where there are no pixels).
+    pub fn from_counts(total: &Counts, per_view: Vec<ViewCounts>) -> Self {
         let n = total.pixels as f64;
         let div = |v: f64| if total.pixels == 0 { f64::NAN } else { v / n };
         Self {
@@ -116,6 +118,24 @@ impl Metrics {
     }
 }
 
+/// Adds one evaluated pixel of GT depth `g` (> 0) and prediction `p` (uncovered when 0 or not
+/// finite) to `c`.
+pub fn add_pixel(c: &mut Counts, p: f32, g: f32) {
+    let p = if p.is_finite() { p as f64 } else { 0.0 };
+    if p == 0.0 {
+        c.uncovered += 1;
+    }
+    let e = (g as f64 - p).abs();
+    c.pixels += 1;
+    c.abs_sum += e;
+    c.sq_sum += e * e;
+    for (w, &t) in c.within.iter_mut().zip(&THRESHOLDS_M) {
+        if e < t {
+            *w += 1;
+        }
+    }
+}
+
 /// Counts of one view: `gt_depth`, `instance` and `pred` of the same size (checked by [`evaluate`]).
 pub fn view_counts(
     pred: &DepthMap,
@@ -124,24 +144,48 @@ pub fn view_counts(
 ) -> Counts {
     let mut c = Counts::default();
     for ((&p, &g), &id) in pred.data.iter().zip(&gt_depth.data).zip(&instance.data) {
-        if id == 0 || g <= 0.0 || !g.is_finite() {
-            continue;
-        }
-        let p = if p.is_finite() { p as f64 } else { 0.0 };
-        if p == 0.0 {
-            c.uncovered += 1;
-        }
-        let e = (g as f64 - p).abs();
-        c.pixels += 1;
-        c.abs_sum += e;
-        c.sq_sum += e * e;
-        for (w, &t) in c.within.iter_mut().zip(&THRESHOLDS_M) {
-            if e < t {
-                *w += 1;
-            }
+        if id != 0 && g > 0.0 && g.is_finite() {
+            add_pixel(&mut c, p, g);
         }
     }
     c
+}
+
+/// The prediction paired with GT view `v` by name, and `v`'s depth and instance map, all checked to
+/// be single-channel and of one size.
+pub(crate) fn check_view<'a>(
+    pred: &'a [(String, DepthMap)],
+    v: &'a View,
+) -> Result<(&'a DepthMap, &'a DepthMap, &'a trand_io::InstanceMap), EvalError> {
+    let (_, p) =
+        pred.iter()
+            .find(|(n, _)| *n == v.name)
+            .ok_or_else(|| EvalError::MissingPrediction {
+                view: v.name.clone(),
+            })?;
+    let d = v.depth.as_ref().ok_or_else(|| EvalError::MissingGt {
+        view: v.name.clone(),
+        what: "depth",
+    })?;
+    let m = v.instance.as_ref().ok_or_else(|| EvalError::MissingGt {
+        view: v.name.clone(),
+        what: "instance map",
+    })?;
+    if !p.same_size(d) || p.channels != 1 {
+        return Err(EvalError::SizeMismatch {
+            view: v.name.clone(),
+            pred_w: p.width,
+            pred_h: p.height,
+            gt_w: d.width,
+            gt_h: d.height,
+        });
+    }
+    if !m.same_size(d) || m.channels != 1 || d.channels != 1 {
+        return Err(EvalError::GtInconsistent {
+            view: v.name.clone(),
+        });
+    }
+    Ok((p, d, m))
 }
 
 /// Evaluates predicted depths against GT views (each with `depth` and `instance` loaded), pairing
@@ -153,33 +197,7 @@ pub fn evaluate(pred: &[(String, DepthMap)], gt: &[View]) -> Result<Metrics, Eva
     let mut total = Counts::default();
     let mut per_view = Vec::with_capacity(gt.len());
     for v in gt {
-        let (_, p) = pred.iter().find(|(n, _)| *n == v.name).ok_or_else(|| {
-            EvalError::MissingPrediction {
-                view: v.name.clone(),
-            }
-        })?;
-        let d = v.depth.as_ref().ok_or_else(|| EvalError::MissingGt {
-            view: v.name.clone(),
-            what: "depth",
-        })?;
-        let m = v.instance.as_ref().ok_or_else(|| EvalError::MissingGt {
-            view: v.name.clone(),
-            what: "instance map",
-        })?;
-        if !p.same_size(d) || p.channels != 1 {
-            return Err(EvalError::SizeMismatch {
-                view: v.name.clone(),
-                pred_w: p.width,
-                pred_h: p.height,
-                gt_w: d.width,
-                gt_h: d.height,
-            });
-        }
-        if !m.same_size(d) || m.channels != 1 || d.channels != 1 {
-            return Err(EvalError::GtInconsistent {
-                view: v.name.clone(),
-            });
-        }
+        let (p, d, m) = check_view(pred, v)?;
         let c = view_counts(p, d, m);
         total.add(&c);
         per_view.push(ViewCounts {

@@ -15,6 +15,7 @@ use trand_io::{
 };
 
 use crate::metrics::{EvalError, Metrics, evaluate};
+use crate::objects::{ObjectInfoError, PerObject, per_object, read_object_info};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunEvalError {
@@ -22,6 +23,8 @@ pub enum RunEvalError {
     Io(#[from] IoError),
     #[error(transparent)]
     Eval(#[from] EvalError),
+    #[error(transparent)]
+    Objects(#[from] ObjectInfoError),
     #[error("missing prediction {path} for test view {view}")]
     MissingPrediction { path: PathBuf, view: String },
     #[error("{path}: predicted depth is {pred_w}x{pred_h}, test view {view} is {gt_w}x{gt_h}")]
@@ -81,15 +84,36 @@ struct Report<'a> {
     data: String,
     #[serde(flatten)]
     metrics: &'a Metrics,
+    per_object: &'a [PerObject],
 }
 
-/// Evaluates `run` against the sequence at `data`. The state is `state` if given, else `run.json`'s,
-/// else t0; an explicit state that contradicts `run.json` is an error. Writes `RUN/metrics.json`.
+/// Everything `trand eval` computes for a run.
+#[derive(Clone, Debug)]
+pub struct RunEvaluation {
+    pub state: State,
+    /// Pooled over every GT object pixel.
+    pub metrics: Metrics,
+    /// Per GT object (ascending id).
+    pub objects: Vec<PerObject>,
+}
+
+/// [`evaluate_run_detailed`]'s state and pooled metrics.
 pub fn evaluate_run(
     run: &Path,
     data: &Path,
     state: Option<State>,
 ) -> Result<(State, Metrics), RunEvalError> {
+    evaluate_run_detailed(run, data, state).map(|e| (e.state, e.metrics))
+}
+
+/// Evaluates `run` against the sequence at `data`, pooled and per GT object. The state is `state` if
+/// given, else `run.json`'s, else t0; an explicit state that contradicts `run.json` is an error.
+/// Writes `RUN/metrics.json` (the pooled figures at the top level, the objects under `per_object`).
+pub fn evaluate_run_detailed(
+    run: &Path,
+    data: &Path,
+    state: Option<State>,
+) -> Result<RunEvaluation, RunEvalError> {
     let recorded = run_state(run)?;
     let state = match (state, recorded) {
         (Some(s), Some(r)) if s != r => {
@@ -140,12 +164,19 @@ pub fn evaluate_run(
         preds.push((v.name.clone(), d));
     }
     let metrics = evaluate(&preds, gt)?;
+    let info = read_object_info(data)?;
+    let objects = per_object(&preds, gt, &info)?;
     let report = Report {
         state,
         data: data.display().to_string(),
         metrics: &metrics,
+        per_object: &objects,
     };
     let json = serde_json::to_vec_pretty(&report).expect("metrics serialise");
     trand_io::write_atomic(&run.join(run_layout::METRICS_JSON), &json)?;
-    Ok((state, metrics))
+    Ok(RunEvaluation {
+        state,
+        metrics,
+        objects,
+    })
 }

@@ -20,7 +20,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let (state, m) = trand_eval::evaluate_run(&a.run, &a.data, a.state).with_context(|| {
+    let ev = trand_eval::evaluate_run_detailed(&a.run, &a.data, a.state).with_context(|| {
         format!(
             "evaluating {} against {}",
             a.run.display(),
@@ -32,8 +32,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "sequence".into());
+    let (state, m) = (ev.state, &ev.metrics);
     let row = format!("{name} {}", state.as_str());
-    print!("{}", trand_eval::table(&[(row.as_str(), &m)]));
+    print!("{}", trand_eval::table(&[(row.as_str(), m)]));
+    print!("{}", trand_eval::object_table(&ev.objects));
     println!(
         "{} pixels ({} uncovered) over {} views; wrote {}",
         m.pixels,
