@@ -6,8 +6,10 @@
 //! because the simulation's material (the paper's, very soft) sags and slides under gravity even where
 //! nothing happens: left to the simulation, objects nobody touched drift by centimetres.
 //!
-//! Two objects touch when some pair of their surfels' centres lies within [`CONTACT_M`]. Surfels of an
-//! object are those whose probability of its channel exceeds ½ (as for deletion).
+//! Two objects touch when at least [`CONTACT_SURFELS`] surfel centres of one lie within [`CONTACT_M`]
+//! of the other's: a real contact is a patch of surface, while a stray surfel (a floater labelled with
+//! an object) is a point. Surfels of an object are those whose probability of its channel exceeds ½
+//! (as for deletion).
 
 use std::collections::HashMap;
 
@@ -18,8 +20,12 @@ use crate::simulate::channel_probs;
 /// Largest centre distance of two surfels of objects in contact (m): surfels sit on the surfaces,
 /// a few millimetres apart, and glass walls in contact are a wall's thickness apart at most.
 pub const CONTACT_M: f32 = 0.008;
+/// See [`trim`].
+pub const OUTLIER_FACTOR: f32 = 1.5;
+/// Surfels near the other object that make a contact (see the module docs).
+pub const CONTACT_SURFELS: usize = 8;
 
-/// Centres of the surfels of each `(id, channel)` object.
+/// Centres of the surfels of each `(id, channel)` object, without its outliers (see [`trim`]).
 pub fn object_centres(s: &Surfels, objects: &[(u16, usize)]) -> Vec<(u16, Vec<[f32; 3]>)> {
     objects
         .iter()
@@ -29,8 +35,28 @@ pub fn object_centres(s: &Surfels, objects: &[(u16, usize)]) -> Vec<(u16, Vec<[f
                 .filter(|&i| p[i] > 0.5)
                 .map(|i| s.means[i])
                 .collect();
-            (id, pts)
+            (id, trim(pts))
         })
+        .collect()
+}
+
+/// Drops the points farther from the component-wise median than [`OUTLIER_FACTOR`] times the 90th
+/// percentile of that distance: floaters, and surfels labelled with an object but lying at another.
+pub fn trim(pts: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
+    if pts.len() < 10 {
+        return pts;
+    }
+    let median = |k: usize| {
+        let mut v: Vec<f32> = pts.iter().map(|p| p[k]).collect();
+        v.sort_by(f32::total_cmp);
+        v[v.len() / 2]
+    };
+    let m = [median(0), median(1), median(2)];
+    let mut d: Vec<f32> = pts.iter().map(|p| dist2(p, &m).sqrt()).collect();
+    d.sort_by(f32::total_cmp);
+    let limit = OUTLIER_FACTOR * d[d.len() * 9 / 10];
+    pts.into_iter()
+        .filter(|p| dist2(p, &m).sqrt() <= limit)
         .collect()
 }
 
@@ -73,10 +99,10 @@ impl<'a> Grid<'a> {
         Self { cells }
     }
 
-    /// Whether any of `points` lies within [`CONTACT_M`] of a point of the grid.
+    /// Whether at least [`CONTACT_SURFELS`] of `points` lie within [`CONTACT_M`] of a grid point.
     fn touches(&self, points: &[[f32; 3]]) -> bool {
         let r2 = CONTACT_M * CONTACT_M;
-        points.iter().any(|p| {
+        let near = points.iter().filter(|p| {
             let c = cell(p);
             (-1..=1).any(|dx| {
                 (-1..=1).any(|dy| {
@@ -87,7 +113,8 @@ impl<'a> Grid<'a> {
                     })
                 })
             })
-        })
+        });
+        near.take(CONTACT_SURFELS).count() == CONTACT_SURFELS
     }
 }
 
@@ -120,8 +147,27 @@ mod tests {
     #[test]
     fn contact_is_decided_by_distance_not_by_cell() {
         // Neighbouring cells, but 9 mm apart: no contact; 7 mm: contact.
-        let a = vec![[0.0079, 0.0, 0.0]];
-        assert!(!Grid::new(&a).touches(&[[0.0169, 0.0, 0.0]]));
-        assert!(Grid::new(&a).touches(&[[0.0149, 0.0, 0.0]]));
+        let a = column(0.0079, 10);
+        assert!(!Grid::new(&a).touches(&column(0.0169, 10)));
+        assert!(Grid::new(&a).touches(&column(0.0149, 10)));
+    }
+
+    #[test]
+    fn surfels_far_from_their_object_are_trimmed() {
+        let mut pts = column(0.0, 40);
+        pts.push([0.3, 0.0, 0.05]);
+        let kept = trim(pts);
+        assert_eq!(kept.len(), 40);
+        assert!(kept.iter().all(|p| p[0] == 0.0));
+    }
+
+    #[test]
+    fn a_few_stray_surfels_are_not_a_contact() {
+        let a = column(0.0, 10);
+        let mut b = column(0.05, 10);
+        b.extend(column(0.003, CONTACT_SURFELS - 1));
+        assert!(!Grid::new(&a).touches(&b));
+        b.push([0.003, 0.0, 0.02]);
+        assert!(Grid::new(&a).touches(&b));
     }
 }

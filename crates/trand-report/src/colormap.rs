@@ -1,7 +1,7 @@
 //! Colour maps of the report: one perceptual map for every scalar image (depth and error), and a
 //! categorical palette for object ids.
 //!
-//! The scalar map is viridis, given by nine samples at t = 0, 1/8, …, 1 and interpolated linearly in
+//! Signed errors use a diverging blue–white–red map ([`diverging`]). The scalar map is viridis, given by nine samples at t = 0, 1/8, …, 1 and interpolated linearly in
 //! sRGB; colour bars use the same samples as SVG gradient stops, so images and bars agree.
 
 /// Viridis sampled at t = k/8, k = 0..=8 (sRGB).
@@ -29,6 +29,22 @@ pub fn viridis(t: f64) -> [u8; 3] {
     let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
     let f = x - i as f64;
     let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    std::array::from_fn(|c| (a[c] as f64 + f * (b[c] as f64 - a[c] as f64)).round() as u8)
+}
+
+/// The signed-error map, sampled at t = −1, 0, 1: blue (prediction nearer than the truth: a lid
+/// over an opening, a floater), white (exact), red (farther: a hole, a surface seen through).
+pub const DIVERGING: [[u8; 3]; 3] = [[33, 102, 172], [247, 247, 247], [178, 24, 43]];
+
+/// The colour of `t` in [−1, 1] on [`DIVERGING`] (clamped; NaN gives [`NO_VALUE`]).
+pub fn diverging(t: f64) -> [u8; 3] {
+    if t.is_nan() {
+        return NO_VALUE;
+    }
+    let x = (t.clamp(-1.0, 1.0) + 1.0) * 0.5 * (DIVERGING.len() - 1) as f64;
+    let i = (x.floor() as usize).min(DIVERGING.len() - 2);
+    let f = x - i as f64;
+    let (a, b) = (DIVERGING[i], DIVERGING[i + 1]);
     std::array::from_fn(|c| (a[c] as f64 + f * (b[c] as f64 - a[c] as f64)).round() as u8)
 }
 

@@ -82,6 +82,62 @@ pub fn accuracy_html(rows: &[AccuracyRow], total: usize) -> String {
     s + "</table>\n"
 }
 
+/// Rows of `(label, objects, metrics)` as a table with MAE and the shares within 2.5 and 5 cm.
+fn object_rows_html<'a>(
+    head: &str,
+    rows: impl Iterator<Item = (String, String, &'a trand_eval::Metrics)>,
+) -> String {
+    let mut s = format!(
+        "<table><tr><th>{head}</th><th></th><th>pixels</th><th>MAE ↓ (m)</th><th>&lt;2.5cm ↑</th><th>&lt;5cm ↑</th></tr>\n"
+    );
+    for (a, b, m) in rows {
+        let _ = writeln!(
+            s,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.2}%</td><td>{:.2}%</td></tr>",
+            escape(&a),
+            escape(&b),
+            m.pixels,
+            m.mae_m,
+            100.0 * m.acc[2],
+            100.0 * m.acc[3]
+        );
+    }
+    s + "</table>\n"
+}
+
+/// Per-object figures of one run.
+pub fn objects_html(objects: &[trand_eval::PerObject]) -> String {
+    object_rows_html(
+        "object",
+        objects
+            .iter()
+            .map(|o| (o.id.to_string(), o.label.clone(), &o.metrics)),
+    )
+}
+
+/// Per-kind tables, one per method and state.
+pub fn kinds_html(tables: &[crate::kinds::KindTable]) -> String {
+    let mut s = String::new();
+    for t in tables.iter().filter(|t| !t.rows.is_empty()) {
+        let _ = write!(
+            s,
+            "<h3>{} {} ({} sequences)</h3>\n{}",
+            t.method,
+            t.state.as_str(),
+            t.sequences,
+            object_rows_html(
+                "kind",
+                t.rows.iter().map(|r| (
+                    r.label.clone(),
+                    format!("{} objects", r.objects),
+                    &r.metrics
+                ))
+            )
+        );
+    }
+    s
+}
+
 /// An efficiency table: seconds per stage, Gaussians, peak memory.
 pub fn efficiency_html(rows: &[EfficiencyRow], state: State) -> String {
     let st = tables::stages(state);
@@ -175,6 +231,10 @@ fn index_page(manifest: &Manifest, t: &Tables, unfinished: &[String]) -> String 
         ("Depth accuracy at t=0", accuracy_html(&t.accuracy_t0, n)),
         ("Depth accuracy at t=1", accuracy_html(&t.accuracy_t1, n)),
         (
+            "Depth accuracy per object kind (objects of every sequence pooled)",
+            kinds_html(&t.per_kind),
+        ),
+        (
             "Efficiency at t=0",
             efficiency_html(&t.efficiency_t0, State::T0),
         ),
@@ -264,7 +324,7 @@ impl StateView<'_> {
         let _ = write!(
             b,
             "<p>Images of <b>{method}</b>, first {} of {} test views. GT and rendered depth share one colour scale; \
-             the error is shown on the evaluated pixels only (GT objects with GT depth).</p>\n<div class=\"bars\">{}{}</div>\n",
+             the error is shown on the evaluated pixels only (GT objects with GT depth).</p>\n<div class=\"bars\">{}{}{}</div>\n",
             views.len().min(SHOWN_VIEWS),
             views.len(),
             svg::colour_bar(lo, hi, "depth (m)", &format!("gd{st}")),
@@ -273,9 +333,16 @@ impl StateView<'_> {
                 ERROR_MAX_M,
                 "absolute error (m), saturating",
                 &format!("ge{st}")
+            ),
+            svg::colour_bar_of(
+                &crate::colormap::DIVERGING,
+                -ERROR_MAX_M,
+                ERROR_MAX_M,
+                "rendered − GT depth (m): blue too near (a lid), red too far",
+                &format!("gs{st}"),
             )
         );
-        b += "<table class=\"views\"><tr><th>view</th><th>GT depth</th><th>rendered depth</th><th>|error|</th><th>GT objects</th><th>predicted objects</th></tr>\n";
+        b += "<table class=\"views\"><tr><th>view</th><th>GT depth</th><th>rendered depth</th><th>|error|</th><th>rendered − GT</th><th>GT objects</th><th>predicted objects</th></tr>\n";
         let mut hist = vec![0u64; HIST_BINS];
         let mut overflow = 0u64;
         for (k, v) in views.iter().enumerate() {
@@ -345,6 +412,12 @@ impl StateView<'_> {
             row += &cell(
                 format!("{st}_{f:06}_error.png"),
                 err.as_ref().map(|e| raster::colour_error(e, ERROR_MAX_M)),
+            )?;
+            row += &cell(
+                format!("{st}_{f:06}_signed_error.png"),
+                pred.as_ref().filter(|p| p.same_size(gt)).map(|p| {
+                    raster::colour_signed_error(&raster::signed_error(p, gt, inst), ERROR_MAX_M)
+                }),
             )?;
             row += &cell(
                 format!("{st}_{f:06}_gt_objects.png"),
@@ -496,6 +569,15 @@ fn sequence_page(
     if let Some(rows) = t.per_sequence.iter().find(|r| r.sequence == entry.name) {
         b += "<h2>Metrics</h2>\n";
         b += &accuracy_html(&rows.rows, 1);
+    }
+    for o in t.per_object.iter().filter(|o| o.sequence == entry.name) {
+        let _ = write!(
+            b,
+            "<h3>{} {}, per object</h3>\n{}",
+            o.method,
+            o.state.as_str(),
+            objects_html(&o.objects)
+        );
     }
     let opts = LoadOptions {
         rgb: Load::Yes,

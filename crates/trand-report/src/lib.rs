@@ -16,10 +16,12 @@
 //! * [`method`]: the benchmarked [`Method`]s and which run folder holds each method's result.
 //! * [`layout`]: the paths above and the [`Manifest`].
 //! * [`tables`]: collecting results into [`Tables`] and writing them as Markdown and JSON.
+//! * [`kinds`]: the per-object tables and their pooling per object kind.
 //! * [`colormap`], [`raster`], [`svg`], [`html`]: the report.
 
 pub mod colormap;
 pub mod html;
+pub mod kinds;
 pub mod layout;
 pub mod method;
 pub mod raster;

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use trand_io::{DepthMap, Image, InstanceMap, Rgb8Image};
 
-use crate::colormap::{NO_VALUE, object_colour, viridis};
+use crate::colormap::{NO_VALUE, diverging, object_colour, viridis};
 use crate::layout::ReportError;
 
 /// Depth coloured over `[lo, hi]` metres; pixels with no depth (≤ 0, non-finite) get [`NO_VALUE`].
@@ -23,6 +23,14 @@ pub fn colour_depth(d: &DepthMap, lo: f64, hi: f64) -> Rgb8Image {
 /// Per-pixel absolute error of `pred` on the evaluated pixels (object with GT depth, as the metrics;
 /// an uncovered prediction costs the GT depth); `NaN` elsewhere.
 pub fn abs_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap {
+    let mut e = signed_error(pred, gt, inst);
+    e.data.iter_mut().for_each(|v| *v = v.abs());
+    e
+}
+
+/// Per-pixel `pred − GT` on the evaluated pixels (an uncovered prediction counts as 0, so `−GT`);
+/// `NaN` elsewhere. Negative where the prediction is too near.
+pub fn signed_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap {
     let data = pred
         .data
         .iter()
@@ -33,7 +41,7 @@ pub fn abs_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap
                 f32::NAN
             } else {
                 let p = if p.is_finite() { p } else { 0.0 };
-                (g - p).abs()
+                p - g
             }
         })
         .collect();
@@ -43,6 +51,11 @@ pub fn abs_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap
         channels: 1,
         data,
     }
+}
+
+/// Signed error coloured over `[−max, max]` metres on the diverging map; `NaN` gets [`NO_VALUE`].
+pub fn colour_signed_error(e: &DepthMap, max: f64) -> Rgb8Image {
+    map_rgb(e, |v| diverging(v as f64 / max))
 }
 
 /// Error coloured over `[0, max]` metres; `NaN` (not evaluated) gets [`NO_VALUE`].

@@ -52,17 +52,22 @@ fn label(v: f64, step: f64) -> String {
 
 /// A horizontal colour bar for values `[lo, hi]` with ticks and a caption (e.g. "depth (m)").
 pub fn colour_bar(lo: f64, hi: f64, caption: &str, id: &str) -> String {
+    colour_bar_of(&VIRIDIS, lo, hi, caption, id)
+}
+
+/// [`colour_bar`] on the colour samples `stops` (evenly spaced from `lo` to `hi`).
+pub fn colour_bar_of(stops: &[[u8; 3]], lo: f64, hi: f64, caption: &str, id: &str) -> String {
     let (w, h, x0) = (300.0, 14.0, 10.0);
     let mut s = format!(
         r#"<svg class="bar" viewBox="0 0 {} 48" width="{}" height="48" role="img"><defs><linearGradient id="{id}">"#,
         w + 2.0 * x0,
         w + 2.0 * x0
     );
-    for (k, c) in VIRIDIS.iter().enumerate() {
+    for (k, c) in stops.iter().enumerate() {
         let _ = write!(
             s,
             r#"<stop offset="{:.3}" stop-color="{}"/>"#,
-            k as f64 / (VIRIDIS.len() - 1) as f64,
+            k as f64 / (stops.len() - 1).max(1) as f64,
             hex(*c)
         );
     }

@@ -13,6 +13,7 @@ use serde::Serialize;
 use trand_eval::Metrics;
 use trand_io::State;
 
+use crate::kinds::{self, KindTable, ObjectTable};
 use crate::layout::{self, Manifest, ReportError};
 use crate::method::Method;
 
@@ -83,6 +84,10 @@ pub struct Tables {
     /// views-3, views-6, views-12, t0 then t1.
     pub view_study: Vec<AccuracyRow>,
     pub per_sequence: Vec<SequenceRows>,
+    /// Per object kind, pooled over the sequences, for every method with its own run.
+    pub per_kind: Vec<KindTable>,
+    /// Per object, per sequence, for every method with its own run.
+    pub per_object: Vec<ObjectTable>,
 }
 
 /// `metrics.json` of a run folder, `None` if absent.
@@ -231,7 +236,15 @@ pub fn build_tables(report: &Path, manifest: &Manifest) -> Result<Tables, Report
     };
     let efficiency_t0 = eff(State::T0)?;
     let efficiency_t1 = eff(State::T1)?;
+    let own_runs: Vec<(Method, State)> = own0
+        .iter()
+        .map(|&m| (m, State::T0))
+        .chain(own1.iter().map(|&m| (m, State::T1)))
+        .collect();
+    let (per_kind, per_object) = kinds::build(report, &seqs, &own_runs)?;
     Ok(Tables {
+        per_kind,
+        per_object,
         accuracy_t0: rows(&own0, &[State::T0]),
         accuracy_t1: rows(&own1, &[State::T1]),
         efficiency_t0,
@@ -329,7 +342,7 @@ impl Tables {
              test views, then the unweighted mean over sequences. Pixels: {}.\n",
             trand_eval::PIXEL_SET_NOTE
         );
-        let sections: [(&str, String); 8] = [
+        let sections: [(&str, String); 9] = [
             (
                 "Depth accuracy at t=0",
                 accuracy_markdown(&self.accuracy_t0, n),
@@ -337,6 +350,10 @@ impl Tables {
             (
                 "Depth accuracy at t=1",
                 accuracy_markdown(&self.accuracy_t1, n),
+            ),
+            (
+                "Depth accuracy per object kind (objects of every sequence pooled)",
+                kinds::kinds_markdown(&self.per_kind),
             ),
             (
                 "Efficiency at t=0",
@@ -367,7 +384,13 @@ impl Tables {
             }
         }
         for q in &self.per_sequence {
-            let _ = writeln!(s, "### {}\n\n{}", q.sequence, accuracy_markdown(&q.rows, 1));
+            let _ = writeln!(
+                s,
+                "### {}\n\n{}\n{}",
+                q.sequence,
+                accuracy_markdown(&q.rows, 1),
+                kinds::objects_markdown(&self.per_object, &q.sequence)
+            );
         }
         s
     }
