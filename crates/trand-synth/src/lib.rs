@@ -26,6 +26,7 @@
 pub mod bop_writer;
 pub mod bvh;
 pub mod cameras;
+pub mod contact;
 pub mod error;
 pub mod layout;
 pub mod material;
