@@ -256,26 +256,44 @@ pub const HULL_SLICES: u32 = 24;
 pub const HULL_SIMPLIFY_M: f32 = 3e-4;
 
 /// Removes polygon vertices within `tol` of the chord between their neighbours, repeatedly
-/// (closed polygon, counter-clockwise).
-fn simplify_closed(mut poly: Vec<Vec2>, tol: f32) -> Vec<Vec2> {
+/// (closed polygon, counter-clockwise), except those in `pinned`.
+fn simplify_closed(mut poly: Vec<Vec2>, tol: f32, pinned: &[Vec2]) -> Vec<Vec2> {
     loop {
         let n = poly.len();
         if n <= 3 {
             return poly;
         }
-        let flattest = (0..n)
+        let Some(flattest) = (0..n)
+            .filter(|&i| !pinned.contains(&poly[i]))
             .map(|i| {
                 let (a, p, b) = (poly[(i + n - 1) % n], poly[i], poly[(i + 1) % n]);
                 let ab = b - a;
                 (i, (p - a).perp_dot(ab).abs() / ab.length().max(1e-12))
             })
             .min_by(|x, y| x.1.total_cmp(&y.1))
-            .expect("n > 3");
+        else {
+            return poly;
+        };
         if flattest.1 >= tol {
             return poly;
         }
         poly.remove(flattest.0);
     }
+}
+
+/// The outermost vertices (largest `|x|`) of the lowest and of the highest row of a polygon:
+/// the rims of the faces an object stands on upright or upside down.
+fn extreme_corners(poly: &[Vec2]) -> Vec<Vec2> {
+    let (lo, hi) = poly.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+        (lo.min(p.y), hi.max(p.y))
+    });
+    let mut corners = Vec::new();
+    for y in [lo, hi] {
+        let row = poly.iter().filter(|p| p.y == y);
+        let widest = row.clone().map(|p| p.x.abs()).fold(0.0, f32::max);
+        corners.extend(row.filter(|p| p.x.abs() == widest));
+    }
+    corners
 }
 
 /// 2D convex hull (Andrew's monotone chain), counter-clockwise.
@@ -313,8 +331,10 @@ pub enum HullFit {
     /// for objects standing on flat faces.
     Inscribed,
     /// Ring vertices at `r / cos(π/n)`: every face touches the surface (apothem `r`), so the
-    /// render mesh never pokes out of its hull. Objects that rest on their round side (lying,
-    /// leaning) need it, or their glass would sink into the table or their support.
+    /// render mesh does not poke out of its hull sideways; and the simplification keeps the
+    /// outer corners of the base and the top (`extreme_corners`), so it does not poke out
+    /// below either. Objects that rest on their round side (lying, leaning) need it, or their
+    /// glass would sink into the table or their support.
     Circumscribed,
 }
 
@@ -332,7 +352,12 @@ pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>, fit: HullFit) ->
         .flat_map(|p| [*p, Vec2::new(-p.x, p.y)])
         .collect();
     let mut pts = Vec::new();
-    for q in simplify_closed(hull_2d(mirrored), HULL_SIMPLIFY_M)
+    let hull = hull_2d(mirrored);
+    let pinned = match fit {
+        HullFit::Inscribed => Vec::new(),
+        HullFit::Circumscribed => extreme_corners(&hull),
+    };
+    for q in simplify_closed(hull, HULL_SIMPLIFY_M, &pinned)
         .into_iter()
         .filter(|q| q.x >= 0.0)
     {
