@@ -8,6 +8,11 @@
 //!   centre jittered by U(±4 cm, ±4 cm, ±2 cm).
 //! * `train_1` frame 0 is the same pose as `train_0` frame 0.
 //!
+//! The reference sequences draw the bird's-eye height, ring elevation and ring distance per
+//! sequence (0.69–0.78 m, 38–45°, 0.54–0.64 m); [`Rig::Fixed`] uses one value of each,
+//! [`Rig::Varied`] draws them from [`VARIED_BIRDSEYE_HEIGHT_M`], [`VARIED_RING_ELEVATION_DEG`] and
+//! [`VARIED_RING_DISTANCE_M`], ranges that span the reference values.
+//!
 //! Intrinsics: `f = 600 · W / 640` (the reference's 600 px at 640 px width), centred principal
 //! point `c = ((W − 1)/2, (H − 1)/2)` (integer pixel centres).
 
@@ -25,6 +30,21 @@ pub const TEST_DISTANCE_M: (f64, f64) = (0.45, 0.8);
 pub const TEST_TARGET_JITTER_M: [f64; 3] = [0.04, 0.04, 0.02];
 /// Focal length in pixels at 640 px image width.
 pub const FOCAL_AT_640: f64 = 600.0;
+/// Bird's-eye height range of [`Rig::Varied`] (m).
+pub const VARIED_BIRDSEYE_HEIGHT_M: (f64, f64) = (0.68, 0.78);
+/// Ring elevation range of [`Rig::Varied`] (degrees).
+pub const VARIED_RING_ELEVATION_DEG: (f64, f64) = (37.0, 46.0);
+/// Ring distance range of [`Rig::Varied`] (m).
+pub const VARIED_RING_DISTANCE_M: (f64, f64) = (0.53, 0.65);
+
+/// How the training rig's height, elevation and distance are chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rig {
+    /// [`BIRDSEYE_HEIGHT_M`], [`RING_ELEVATION_DEG`], [`RING_DISTANCE_M`] for every sequence.
+    Fixed,
+    /// Drawn per sequence from the `VARIED_*` ranges, as the reference sequences are.
+    Varied,
+}
 
 /// Intrinsics for a `width × height` image (focal scaled with width).
 pub fn intrinsics(width: u32, height: u32) -> Intrinsics {
@@ -53,35 +73,56 @@ pub fn orbit(
     Camera::look_at(k, eye, target, DVec3::Z)
 }
 
+/// The ring's parameters: the start azimuth is always drawn, the rest as `rig` says.
+fn ring_info(rig: Rig, rng: &mut impl rand::Rng) -> RingInfo {
+    let ring_azimuth0_deg: f64 = rng.random_range(0.0..360.0);
+    match rig {
+        Rig::Fixed => RingInfo {
+            birdseye_height_m: BIRDSEYE_HEIGHT_M,
+            ring_azimuth0_deg,
+            ring_elevation_deg: RING_ELEVATION_DEG,
+            ring_distance_m: RING_DISTANCE_M,
+        },
+        Rig::Varied => {
+            let (h, e, d) = (
+                VARIED_BIRDSEYE_HEIGHT_M,
+                VARIED_RING_ELEVATION_DEG,
+                VARIED_RING_DISTANCE_M,
+            );
+            RingInfo {
+                birdseye_height_m: rng.random_range(h.0..h.1),
+                ring_azimuth0_deg,
+                ring_elevation_deg: rng.random_range(e.0..e.1),
+                ring_distance_m: rng.random_range(d.0..d.1),
+            }
+        }
+    }
+}
+
 /// Bird's-eye view plus the 12-view ring.
 pub fn train_views(
     k: Intrinsics,
     centre: DVec3,
+    rig: Rig,
     rng: &mut impl rand::Rng,
 ) -> (Vec<Camera>, RingInfo) {
+    let info = ring_info(rig, rng);
     let top = Camera::look_at(
         k,
-        centre + DVec3::new(0.0, 0.0, BIRDSEYE_HEIGHT_M),
+        centre + DVec3::new(0.0, 0.0, info.birdseye_height_m),
         centre,
         DVec3::Y,
     );
-    let az0: f64 = rng.random_range(0.0..360.0);
     let mut cams = vec![top];
     cams.extend((0..RING_VIEWS).map(|i| {
         orbit(
             k,
             centre,
-            az0 + 30.0 * i as f64,
-            RING_ELEVATION_DEG,
-            RING_DISTANCE_M,
+            info.ring_azimuth0_deg + 30.0 * i as f64,
+            info.ring_elevation_deg,
+            info.ring_distance_m,
         )
     }));
-    let info = RingInfo {
-        birdseye_height_m: BIRDSEYE_HEIGHT_M,
-        ring_azimuth0_deg: az0,
-        ring_elevation_deg: RING_ELEVATION_DEG,
-        ring_distance_m: RING_DISTANCE_M,
-    };
     (cams, info)
 }
 
@@ -112,7 +153,12 @@ mod tests {
     #[test]
     fn birdseye_view_looks_straight_down_with_x_along_world_x() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(1);
-        let (cams, _) = train_views(intrinsics(640, 480), DVec3::new(0.01, 0.02, 0.03), &mut rng);
+        let (cams, _) = train_views(
+            intrinsics(640, 480),
+            DVec3::new(0.01, 0.02, 0.03),
+            Rig::Fixed,
+            &mut rng,
+        );
         let r = cams[0].rotation();
         let want = glam::DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
         assert!(
@@ -127,10 +173,30 @@ mod tests {
     }
 
     #[test]
+    fn a_varied_rig_draws_its_height_elevation_and_distance_within_the_reference_ranges() {
+        let centre = DVec3::new(0.0, 0.0, 0.03);
+        for seed in 0..20 {
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+            let (cams, info) = train_views(intrinsics(320, 240), centre, Rig::Varied, &mut rng);
+            let within = |v: f64, (lo, hi): (f64, f64)| (lo..hi).contains(&v);
+            assert!(within(info.birdseye_height_m, VARIED_BIRDSEYE_HEIGHT_M));
+            assert!(within(info.ring_elevation_deg, VARIED_RING_ELEVATION_DEG));
+            assert!(within(info.ring_distance_m, VARIED_RING_DISTANCE_M));
+            assert!((cams[0].center().z - centre.z - info.birdseye_height_m).abs() < 1e-9);
+            for c in &cams[1..] {
+                let v = c.center() - centre;
+                assert!((v.length() - info.ring_distance_m).abs() < 1e-9);
+                let el = (v.z / v.length()).asin().to_degrees();
+                assert!((el - info.ring_elevation_deg).abs() < 1e-9);
+            }
+        }
+    }
+
+    #[test]
     fn ring_views_sit_at_the_ring_elevation_and_distance() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(2);
         let centre = DVec3::new(0.0, 0.0, 0.03);
-        let (cams, _) = train_views(intrinsics(320, 240), centre, &mut rng);
+        let (cams, _) = train_views(intrinsics(320, 240), centre, Rig::Fixed, &mut rng);
         for c in &cams[1..] {
             let v = c.center() - centre;
             assert!((v.length() - RING_DISTANCE_M).abs() < 1e-9);

@@ -1,11 +1,12 @@
 //! Random scene composition: which objects, what they are made of, where they start, and the
-//! stacking relation that makes the t = 1 removal interesting.
+//! relation between two of them that makes the t = 1 removal interesting ([`Event`]).
 //!
-//! One pair is always a **stack**: an upside-down tumbler or bowl (its base is then a flat top)
-//! with a tumbler, wine glass or bottle standing on it, as in the reference `seq_101`/`seq_105`.
-//! The other objects stand on the table around it, placed by rejection sampling so that their
-//! footprints (circumscribed circles plus [`CLEARANCE_M`]) do not overlap. Each object starts
-//! [`DROP_GAP_M`] above its support and is settled by [`crate::physics`].
+//! [`sample`] is the stacked family: one pair is always a **stack**, an upside-down tumbler or
+//! bowl (its base is then a flat top) with a tumbler, wine glass or bottle standing on it, as in
+//! the reference `seq_101`/`seq_105`. The other objects stand on the table around it, placed by
+//! rejection sampling so that their footprints (circumscribed circles plus [`CLEARANCE_M`]) do
+//! not overlap. Each object starts [`DROP_GAP_M`] above its support and is settled by
+//! [`crate::physics`]. The containers family ([`crate::containers`]) reuses the pieces here.
 
 use crate::material::{Material, Texture};
 use crate::physics::{CERAMIC_DENSITY, GLASS_DENSITY, Plate, Pose};
@@ -24,12 +25,18 @@ pub const PLACEMENT_RADIUS_M: f32 = 0.17;
 /// Probability that a non-stacked object is glass (the rest are glazed, opaque).
 pub const GLASS_PROBABILITY: f64 = 0.7;
 
-/// How an object starts.
+/// How an object starts (`initial_mode` in `sequence.json`, as in the reference data).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Orientation {
+    /// Standing on its base, opening up.
     Upright,
+    /// Upside down, resting on its rim.
     Inverted,
+    /// On its side, axis (nearly) horizontal.
+    Lying,
+    /// Foot on the table, leaning against another object.
+    Tilted,
 }
 
 /// One object of the scene.
@@ -45,17 +52,45 @@ pub struct ObjectSpec {
     pub plate: Plate,
 }
 
+/// How the supported object of the t = 1 event rests on its support at t = 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RelationKind {
+    /// Standing on the support's flat top.
+    Stack,
+    /// Foot on the table, side against the support.
+    Lean,
+}
+
+impl RelationKind {
+    /// The name written to `sequence.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RelationKind::Stack => "stack",
+            RelationKind::Lean => "lean",
+        }
+    }
+}
+
+/// The pair whose separation at t = 1 makes the removal interesting: `support` is removed,
+/// `supported` loses what held it. Indices into [`Layout::objects`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Event {
+    pub kind: RelationKind,
+    pub support: usize,
+    pub supported: usize,
+}
+
 /// The composed scene before physics.
 #[derive(Clone, Debug)]
 pub struct Layout {
     pub objects: Vec<ObjectSpec>,
     pub start: Vec<Pose>,
-    /// Indices `(support, supported)` of the stacked pair.
-    pub stack: (usize, usize),
+    pub event: Event,
     pub env: Environment,
 }
 
-fn color(rng: &mut impl rand::Rng, lo: f32, hi: f32) -> [f32; 3] {
+pub(crate) fn color(rng: &mut impl rand::Rng, lo: f32, hi: f32) -> [f32; 3] {
     [
         rng.random_range(lo..hi),
         rng.random_range(lo..hi),
@@ -63,21 +98,21 @@ fn color(rng: &mut impl rand::Rng, lo: f32, hi: f32) -> [f32; 3] {
     ]
 }
 
-fn glass(rng: &mut impl rand::Rng) -> Material {
+pub(crate) fn glass(rng: &mut impl rand::Rng) -> Material {
     Material::Glass {
         ior: rng.random_range(1.45..1.55),
         tint: color(rng, 0.9, 1.0),
     }
 }
 
-fn glazed(rng: &mut impl rand::Rng) -> Material {
+pub(crate) fn glazed(rng: &mut impl rand::Rng) -> Material {
     // A saturated colour: one channel strong, the others random.
     let mut c = color(rng, 0.08, 0.6);
     c[rng.random_range(0..3usize)] = rng.random_range(0.6..0.85);
     Material::Glazed { color: c }
 }
 
-fn environment(rng: &mut impl rand::Rng) -> Environment {
+pub(crate) fn environment(rng: &mut impl rand::Rng) -> Environment {
     let texture = match rng.random_range(0..4u32) {
         0 => Texture::Plain {
             color: color(rng, 0.3, 0.75),
@@ -142,7 +177,16 @@ fn make_object(
     rng: &mut impl rand::Rng,
     slices: u32,
 ) -> ObjectSpec {
-    let model = build(kind, rng, slices);
+    object_of(id, build(kind, rng, slices), material, orientation)
+}
+
+/// An object from a built model: its mass is the mesh volume times the material's density.
+pub(crate) fn object_of(
+    id: u32,
+    model: Model,
+    material: Material,
+    orientation: Orientation,
+) -> ObjectSpec {
     let density = if material.is_transparent() {
         GLASS_DENSITY
     } else {
@@ -159,17 +203,17 @@ fn make_object(
     }
 }
 
-/// Rotation of an object: yaw about z, flipped about x when inverted.
-fn orientation_quat(o: Orientation, yaw: f32) -> Quat {
+/// Rotation of an upright or upside-down object: yaw about z, flipped about x when inverted.
+pub(crate) fn orientation_quat(o: Orientation, yaw: f32) -> Quat {
     let flip = match o {
-        Orientation::Upright => Quat::IDENTITY,
         Orientation::Inverted => Quat::from_rotation_x(std::f32::consts::PI),
+        Orientation::Upright | Orientation::Lying | Orientation::Tilted => Quat::IDENTITY,
     };
     Quat::from_rotation_z(yaw) * flip
 }
 
 /// Lowest and highest world z of a model under a rotation.
-fn z_range(m: &Model, q: Quat) -> (f32, f32) {
+pub(crate) fn z_range(m: &Model, q: Quat) -> (f32, f32) {
     m.mesh
         .positions
         .iter()
@@ -178,12 +222,37 @@ fn z_range(m: &Model, q: Quat) -> (f32, f32) {
 }
 
 /// Footprint radius: largest horizontal distance of a vertex from the model origin.
-fn footprint(m: &Model) -> f32 {
+pub(crate) fn footprint(m: &Model) -> f32 {
     m.mesh
         .positions
         .iter()
         .map(|p| p.truncate().length())
         .fold(0.0, f32::max)
+}
+
+/// Rejection sampling of a footprint centre in the placement disc: a uniform point in the disc
+/// whose circle of radius `r` clears every `placed` circle by [`CLEARANCE_M`]; after every 100
+/// failures the disc grows by [`PLACEMENT_RADIUS_M`], and after 400 the last candidate is kept.
+pub(crate) fn place_in_disc(
+    rng: &mut impl rand::Rng,
+    placed: &[(glam::Vec2, f32)],
+    r: f32,
+) -> glam::Vec2 {
+    let mut xy = glam::Vec2::ZERO;
+    for attempt in 0..400 {
+        let rad = PLACEMENT_RADIUS_M * (1.0 + attempt as f32 / 100.0);
+        let cand = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU))
+            * rad
+            * rng.random_range(0.0f32..1.0).sqrt();
+        xy = cand;
+        if placed
+            .iter()
+            .all(|(c, rc)| (cand - *c).length() > r + rc + CLEARANCE_M)
+        {
+            break;
+        }
+    }
+    xy
 }
 
 /// Composes a scene of `n` objects (`n ≥ 2`).
@@ -273,21 +342,7 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
         );
         let (lo, _) = z_range(&obj.model, q);
         let r = footprint(&obj.model);
-        let mut xy = glam::Vec2::ZERO;
-        // Rejection sampling; after many failures the placement disc grows.
-        for attempt in 0..400 {
-            let rad = PLACEMENT_RADIUS_M * (1.0 + attempt as f32 / 100.0);
-            let cand = glam::Vec2::from_angle(rng.random_range(0.0..std::f32::consts::TAU))
-                * rad
-                * rng.random_range(0.0f32..1.0).sqrt();
-            xy = cand;
-            if placed
-                .iter()
-                .all(|(c, rc)| (cand - *c).length() > r + rc + CLEARANCE_M)
-            {
-                break;
-            }
-        }
+        let xy = place_in_disc(rng, &placed, r);
         placed.push((xy, r));
         start.push(Pose {
             rotation: q,
@@ -297,7 +352,11 @@ pub fn sample(rng: &mut impl rand::Rng, n: u32, slices: u32) -> Layout {
     Layout {
         objects,
         start,
-        stack: (0, 1),
+        event: Event {
+            kind: RelationKind::Stack,
+            support: 0,
+            supported: 1,
+        },
         env,
     }
 }

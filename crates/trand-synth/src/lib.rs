@@ -3,9 +3,11 @@
 //! [`generate`] builds one sequence in the layout of the reference Blender data
 //! (`shared/data/blender/seq_*`):
 //!
-//! 1. [`layout`]: a random table scene of procedural glassware ([`shapes`]) with one stacked pair;
-//! 2. [`physics`]: drop and settle with rapier3d (t = 0), remove the supporting object and
-//!    re-settle (t = 1);
+//! 1. a random table scene of procedural glassware ([`shapes`]) with one supporting pair, the
+//!    t = 1 event: [`layout`] (the stacked family: a stacked pair among random objects) or
+//!    [`containers`] (upright open containers, lying tumblers, and a stack or a lean);
+//! 2. [`physics`]: drop and settle with rapier3d (t = 0, checked by [`stack`] or [`lean`]),
+//!    remove the supporting object and re-settle (t = 1);
 //! 3. [`cameras`]: bird's-eye + 12-view ring for training, random hemisphere views for testing;
 //! 4. [`trace`]: a ray tracer over a [`bvh`] with real dielectrics ([`material`]) for colour, and
 //!    one exact ray per pixel centre for depth and instance masks;
@@ -26,13 +28,18 @@
 pub mod bop_writer;
 pub mod bvh;
 pub mod cameras;
+pub mod contact;
+pub mod containers;
 pub mod error;
 pub mod layout;
+pub mod lean;
 pub mod material;
 pub mod physics;
+pub mod relation;
 pub mod scene;
 pub mod sequence;
 pub mod shapes;
+pub mod stack;
 pub mod trace;
 
 pub use error::SynthError;
@@ -48,7 +55,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Objects per scene: at least the stacked pair, at most what fits the placement disc.
+/// Objects per scene: at least the supporting pair, at most what fits the placement disc.
 pub const MIN_OBJECTS: u32 = 2;
 pub const MAX_OBJECTS: u32 = 6;
 /// Largest accepted image side (16-bit PNG and memory sanity).
@@ -64,16 +71,57 @@ pub const SEAT_GAP_M: f32 = 5e-5;
 pub const SETTLE_ONTO_DAMPING: (f32, f32) = (5.0, 20.0);
 /// Objects whose lowest point is below this height stand on the table (m).
 pub const ON_TABLE_M: f32 = 0.001;
-/// Layouts tried until the stacked pair really rests on each other after settling.
+/// Layouts tried until the supporting pair really rests on each other after settling.
 pub const MAX_LAYOUT_ATTEMPTS: u32 = 6;
 
 /// Named settings bundles.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preset {
-    /// 640×480, 4 objects, 30 test views per state, 4 samples per pixel.
+    /// Stacked family, 640×480, 4 objects, 30 test views per state, 4 samples per pixel.
     Default,
-    /// 160×120, 3 objects, 3 test views per state, 2 samples per pixel: for tests (seconds).
+    /// Stacked family, 160×120, 3 objects, 3 test views per state, 2 samples per pixel: for
+    /// tests (seconds).
     Tiny,
+    /// Containers family ([`containers`]), 640×480, 3–6 objects, the reference sequences'
+    /// varied camera rig and 10 test views per state, 4 samples per pixel.
+    Containers,
+    /// Containers family at 160×120, 3 test views per state, 2 samples per pixel: for tests.
+    ContainersTiny,
+}
+
+/// Which kind of scene [`generate`] composes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneFamily {
+    /// A stacked pair among random objects ([`layout::sample`]).
+    Stacked,
+    /// Upright open containers, lying tumblers and a stack or a lean ([`containers::sample`]).
+    Containers,
+}
+
+/// How many objects a scene has.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ObjectCount {
+    Exactly(u32),
+    /// Drawn uniformly from `min..=max` by the scene's seed.
+    Between(u32, u32),
+}
+
+impl ObjectCount {
+    /// The count for one scene; `Exactly` draws nothing from `rng`.
+    fn draw(self, rng: &mut impl rand::Rng) -> u32 {
+        use rand::RngExt;
+        match self {
+            ObjectCount::Exactly(n) => n,
+            ObjectCount::Between(lo, hi) => rng.random_range(lo..=hi),
+        }
+    }
+
+    fn bounds(self) -> (u32, u32) {
+        match self {
+            ObjectCount::Exactly(n) => (n, n),
+            ObjectCount::Between(lo, hi) => (lo, hi),
+        }
+    }
 }
 
 /// What to do when the output folder already exists and is not empty.
@@ -95,9 +143,11 @@ pub enum Progress {
 pub struct SynthConfig {
     pub seed: u64,
     pub out: PathBuf,
+    pub family: SceneFamily,
     pub width: u32,
     pub height: u32,
-    pub objects: u32,
+    pub objects: ObjectCount,
+    pub rig: cameras::Rig,
     pub test_views: u32,
     pub samples_per_pixel: u32,
     /// Angular resolution of the lathed meshes.
@@ -108,16 +158,27 @@ pub struct SynthConfig {
 
 impl SynthConfig {
     pub fn new(preset: Preset, seed: u64, out: impl Into<PathBuf>) -> Self {
-        let (width, height, objects, test_views, samples_per_pixel, lathe_slices) = match preset {
-            Preset::Default => (640, 480, 4, 30, 4, 72),
-            Preset::Tiny => (160, 120, 3, 3, 2, 32),
+        use ObjectCount::{Between, Exactly};
+        use SceneFamily::{Containers, Stacked};
+        use cameras::Rig::{Fixed, Varied};
+        let (family, rig, objects) = match preset {
+            Preset::Default => (Stacked, Fixed, Exactly(4)),
+            Preset::Tiny => (Stacked, Fixed, Exactly(3)),
+            Preset::Containers | Preset::ContainersTiny => (Containers, Varied, Between(3, 6)),
+        };
+        let (width, height, test_views, samples_per_pixel, lathe_slices) = match preset {
+            Preset::Default => (640, 480, 30, 4, 72),
+            Preset::Containers => (640, 480, 10, 4, 72),
+            Preset::Tiny | Preset::ContainersTiny => (160, 120, 3, 2, 32),
         };
         Self {
             seed,
             out: out.into(),
+            family,
             width,
             height,
             objects,
+            rig,
             test_views,
             samples_per_pixel,
             lathe_slices,
@@ -137,11 +198,16 @@ impl SynthConfig {
                 );
             }
         }
-        if !(MIN_OBJECTS..=MAX_OBJECTS).contains(&self.objects) {
+        let (lo, hi) = self.objects.bounds();
+        let least = match self.family {
+            SceneFamily::Stacked => MIN_OBJECTS,
+            SceneFamily::Containers => containers::MIN_OBJECTS,
+        };
+        if lo > hi || lo < least || hi > MAX_OBJECTS {
             return bad(
                 "objects",
                 format!(
-                    "{} must be between {MIN_OBJECTS} and {MAX_OBJECTS}",
+                    "{:?} must lie between {least} and {MAX_OBJECTS}",
                     self.objects
                 ),
             );
@@ -177,7 +243,9 @@ pub struct Summary {
     pub out: PathBuf,
     pub views: usize,
     pub removed_obj_id: u32,
-    pub stack_verified: bool,
+    /// How the removed object supported another at t = 0, and whether that held.
+    pub relation: layout::RelationKind,
+    pub relation_verified: bool,
     pub physics_s: f64,
     pub render_s: f64,
     pub total_s: f64,
@@ -242,152 +310,82 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
     finish
 }
 
-/// How well the stacked pair rests after settling.
-fn check_stack(layout: &layout::Layout, rest: &[Pose]) -> Relation {
-    let (s, t) = layout.stack;
-    let world_z = |i: usize| {
-        world_points(layout, rest, i)
-            .map(|p| p.z)
-            .fold(f32::MAX, f32::min)
-    };
-    let height = |i: usize| {
-        let (lo, hi) = layout.objects[i].model.mesh.bounds();
-        hi.z - lo.z
-    };
-    let tilt = |i: usize| {
-        (rest[i].rotation * glam::Vec3::Z)
-            .z
-            .abs()
-            .clamp(0.0, 1.0)
-            .acos()
-            .to_degrees()
-    };
-    let min_z = world_z(t);
-    let all_on_table = (0..rest.len()).filter(|&i| i != t).all(|i| {
-        world_z(i) < ON_TABLE_M
-            && rest[i].translation.truncate().length() < layout.env.table.half_size_m
-    });
-    let verified = all_on_table && min_z > 0.7 * height(s) && tilt(t) < 15.0 && tilt(s) < 5.0;
-    Relation {
-        kind: "stack",
-        support_obj_id: layout.objects[s].id,
-        supported_obj_id: layout.objects[t].id,
-        supported_min_z_mm: min_z * 1000.0,
-        supported_tilt_deg: tilt(t),
-        all_on_table,
-        verified,
+/// How the remaining objects are simulated at t = 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum T1Motion {
+    /// Objects that lost their support start awake, all others asleep; rapier wakes what they
+    /// touch (and, at times, more: see [`physics::settle_spreading`]).
+    AsleepUntilWoken,
+    /// Objects that lost their support move, all others are fixed until something moving
+    /// touches them ([`physics::settle_spreading`]).
+    SpreadByContact,
+}
+
+/// The t = 1 simulation of each scene family (the stacked family keeps its original one).
+pub fn t1_motion(family: SceneFamily) -> T1Motion {
+    match family {
+        SceneFamily::Stacked => T1Motion::AsleepUntilWoken,
+        SceneFamily::Containers => T1Motion::SpreadByContact,
     }
 }
 
-/// t = 0 settling in two phases: everything but the supported object first; then the supported
-/// object alone onto the (now fixed) settled scene. A resting support does not move anyway, and
-/// a static support gives the stiff, creep-free contact that a dynamic one lacks in rapier.
-fn settle_stack(
+/// Whether object `i` may have lost its support when another is removed: it rests on something
+/// other than the table alone (its lowest hull point is above [`ON_TABLE_M`], or it leans).
+fn lost_support(layout: &layout::Layout, rest0: &[Pose], i: usize) -> bool {
+    let lowest = layout.objects[i]
+        .model
+        .hull_points
+        .iter()
+        .map(|p| rest0[i].apply(*p).z)
+        .fold(f32::MAX, f32::min);
+    lowest > ON_TABLE_M || layout.objects[i].orientation == layout::Orientation::Tilted
+}
+
+/// Settles the objects `keep` from their t = 0 poses after the removal. Returns their poses,
+/// the stats and the ids of the objects that were simulated (`None` for
+/// [`T1Motion::AsleepUntilWoken`], where every object is).
+fn settle_t1(
     layout: &layout::Layout,
+    rest0: &[Pose],
+    keep: &[usize],
+    motion: T1Motion,
     params: &PhysicsParams,
-) -> (Vec<Pose>, physics::SettleStats, Option<SeatCorrection>) {
-    let top = layout.stack.1;
-    fn spec(o: &layout::ObjectSpec) -> BodySpec<'_> {
-        BodySpec {
-            hull_points: &o.model.hull_points,
-            mass_kg: o.mass_kg,
-            plate: o.plate,
+) -> (Vec<Pose>, physics::SettleStats, Option<Vec<u32>>) {
+    let specs: Vec<BodySpec> = keep
+        .iter()
+        .map(|&i| stack::spec(&layout.objects[i]))
+        .collect();
+    let start: Vec<Pose> = keep.iter().map(|&i| rest0[i]).collect();
+    let lost: Vec<bool> = keep
+        .iter()
+        .map(|&i| lost_support(layout, rest0, i))
+        .collect();
+    match motion {
+        T1Motion::AsleepUntilWoken => {
+            let wake: Vec<physics::Wake> = lost
+                .iter()
+                .map(|&l| {
+                    if l {
+                        physics::Wake::Awake
+                    } else {
+                        physics::Wake::Asleep
+                    }
+                })
+                .collect();
+            let (rest, stats) = physics::settle(&specs, &start, &wake, params);
+            (rest, stats, None)
+        }
+        T1Motion::SpreadByContact => {
+            let (rest, stats, moved) = physics::settle_spreading(&specs, &start, &lost, params);
+            let ids = keep
+                .iter()
+                .zip(&moved)
+                .filter(|(_, m)| **m)
+                .map(|(&i, _)| layout.objects[i].id)
+                .collect();
+            (rest, stats, Some(ids))
         }
     }
-    let rest_idx: Vec<usize> = (0..layout.objects.len()).filter(|&i| i != top).collect();
-    let specs: Vec<BodySpec> = rest_idx.iter().map(|&i| spec(&layout.objects[i])).collect();
-    let start: Vec<Pose> = rest_idx.iter().map(|&i| layout.start[i]).collect();
-    let (phase_a, stats_a) = physics::settle(
-        &specs,
-        &start,
-        &vec![physics::Wake::Awake; specs.len()],
-        params,
-    );
-    // The supported object keeps its height above its support's settled pose.
-    let mut poses = layout.start.clone();
-    for (k, &i) in rest_idx.iter().enumerate() {
-        poses[i] = phase_a[k];
-    }
-    let support = layout.stack.0;
-    let lift = poses[support].translation - layout.start[support].translation;
-    poses[top].translation += lift;
-    let specs: Vec<BodySpec> = layout.objects.iter().map(spec).collect();
-    let wake: Vec<physics::Wake> = (0..specs.len())
-        .map(|i| {
-            if i == top {
-                physics::Wake::Awake
-            } else {
-                physics::Wake::Fixed
-            }
-        })
-        .collect();
-    let (mut rest, stats_b) = physics::settle(
-        &specs,
-        &poses,
-        &wake,
-        &PhysicsParams {
-            linear_damping: SETTLE_ONTO_DAMPING.0,
-            angular_damping: SETTLE_ONTO_DAMPING.1,
-            ..*params
-        },
-    );
-    let seat = seat_on_support(layout, &mut rest);
-    let steps = stats_a.steps + stats_b.steps;
-    (
-        rest,
-        physics::SettleStats {
-            steps,
-            seconds: steps as f32 * params.dt,
-            converged: stats_a.converged && stats_b.converged,
-        },
-        seat,
-    )
-}
-
-/// The mesh vertices of object `i` at its pose in `rest`, in world coordinates.
-fn world_points<'a>(
-    layout: &'a layout::Layout,
-    rest: &[Pose],
-    i: usize,
-) -> impl Iterator<Item = glam::Vec3> + 'a {
-    let pose = rest[i];
-    layout.objects[i]
-        .model
-        .mesh
-        .positions
-        .iter()
-        .map(move |p| pose.apply(*p))
-}
-
-/// Contact projection of the supported object: rapier leaves a glass on a glass rocking by a
-/// degree or two (see [`settle_stack`]); when it came to rest on its support within
-/// [`SEAT_MAX_TILT_DEG`] of the support's axis, it is turned about its centre to stand exactly
-/// along that axis (yaw kept) and moved along it so that its base is [`SEAT_GAP_M`] above the
-/// support's top. The glasses then neither float on one side nor intersect.
-fn seat_on_support(layout: &layout::Layout, rest: &mut [Pose]) -> Option<SeatCorrection> {
-    let (s, t) = layout.stack;
-    let axis_s = rest[s].rotation * glam::Vec3::Z;
-    let up = if axis_s.z >= 0.0 { axis_s } else { -axis_s };
-    let axis_t = rest[t].rotation * glam::Vec3::Z;
-    let tilt_deg = axis_t.angle_between(up).to_degrees();
-    if tilt_deg > SEAT_MAX_TILT_DEG {
-        return None;
-    }
-    let before = rest[t].translation;
-    let fix = glam::Quat::from_rotation_arc(axis_t, up);
-    // Untilt about the object's centre (its translation is kept), then slide it along the axis.
-    rest[t].rotation = (fix * rest[t].rotation).normalize();
-    let top_of_support = world_points(layout, rest, s)
-        .map(|p| p.dot(up))
-        .fold(f32::MIN, f32::max);
-    let base_of_top = world_points(layout, rest, t)
-        .map(|p| p.dot(up))
-        .fold(f32::MAX, f32::min);
-    rest[t].translation += (top_of_support + SEAT_GAP_M - base_of_top) * up;
-    Some(SeatCorrection {
-        tilt_deg,
-        shift_mm: 1000.0 * rest[t].translation.distance(before),
-    })
 }
 
 fn pose_info(p: &Pose) -> PoseInfo {
@@ -405,21 +403,30 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let mut rng = rand_pcg::Pcg64::seed_from_u64(config.seed);
     let params = PhysicsParams::default();
 
-    // 1-2. Layout and t = 0 settling, retried until the stack holds.
+    // 1-2. Layout and t = 0 settling, retried until the supporting pair holds.
+    let n_objects = config.objects.draw(&mut rng);
     let mut attempts = Vec::new();
-    let (layout, rest0, stats0, relation, seat) = loop {
-        let layout = layout::sample(&mut rng, config.objects, config.lathe_slices);
-        let (rest, stats, seat) = settle_stack(&layout, &params);
-        let rel = check_stack(&layout, &rest);
-        let done = rel.verified || attempts.len() as u32 + 1 >= MAX_LAYOUT_ATTEMPTS;
-        attempts.push(rel.clone());
+    let (layout, settled) = loop {
+        let layout = match config.family {
+            SceneFamily::Stacked => layout::sample(&mut rng, n_objects, config.lathe_slices),
+            SceneFamily::Containers => containers::sample(&mut rng, n_objects, config.lathe_slices),
+        };
+        let settled = relation::settle_event(&layout, &params);
+        let done = settled.relation.verified || attempts.len() as u32 + 1 >= MAX_LAYOUT_ATTEMPTS;
+        attempts.push(settled.relation.clone());
         if done {
-            break (layout, rest, stats, rel, seat);
+            break (layout, settled);
         }
     };
-    // t = 1: remove the support (or, if no stack held, the object closest to another one).
+    let relation::Settled {
+        rest: rest0,
+        stats: stats0,
+        seat,
+        relation,
+    } = settled;
+    // t = 1: remove the support (or, if the pair did not hold, the object closest to another).
     let removed = if relation.verified {
-        layout.stack.0
+        layout.event.support
     } else {
         let n = rest0.len();
         (0..n)
@@ -437,35 +444,8 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let keep: Vec<usize> = (0..layout.objects.len())
         .filter(|&i| i != removed)
         .collect();
-    let specs: Vec<BodySpec> = keep
-        .iter()
-        .map(|&i| BodySpec {
-            hull_points: &layout.objects[i].model.hull_points,
-            mass_kg: layout.objects[i].mass_kg,
-            plate: layout.objects[i].plate,
-        })
-        .collect();
-    let start1: Vec<Pose> = keep.iter().map(|&i| rest0[i]).collect();
-    // Objects that rest on something other than the table (their lowest point is above
-    // ON_TABLE_M) may have lost their support: they start awake. Everything standing on the table
-    // starts asleep and only moves if something falling hits it.
-    let wake: Vec<physics::Wake> = keep
-        .iter()
-        .map(|&i| {
-            let lowest = layout.objects[i]
-                .model
-                .hull_points
-                .iter()
-                .map(|p| rest0[i].apply(*p).z)
-                .fold(f32::MAX, f32::min);
-            if lowest > ON_TABLE_M {
-                physics::Wake::Awake
-            } else {
-                physics::Wake::Asleep
-            }
-        })
-        .collect();
-    let (mut rest1, stats1) = physics::settle(&specs, &start1, &wake, &params);
+    let (mut rest1, stats1, simulated) =
+        settle_t1(&layout, &rest0, &keep, t1_motion(config.family), &params);
     let mut displacement = BTreeMap::new();
     let mut snapped = Vec::new();
     for (k, &i) in keep.iter().enumerate() {
@@ -496,7 +476,7 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         .sum::<DVec3>()
         / rest0.len() as f64;
     let centre = DVec3::new(mean.x, mean.y, 0.03);
-    let (train, ring) = cameras::train_views(k, centre, &mut rng);
+    let (train, ring) = cameras::train_views(k, centre, config.rig, &mut rng);
     let test0 = cameras::test_views(k, centre, config.test_views, &mut rng);
     let test1 = cameras::test_views(k, centre, config.test_views, &mut rng);
 
@@ -614,7 +594,10 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             model: format!("models/obj_{:06}.ply", o.id),
             material: o.material,
             mass_kg: o.mass_kg,
-            params_m: o.model.params.iter().copied().collect(),
+            params_m: ParamsInfo {
+                dimensions_m: o.model.params.iter().copied().collect(),
+                initial_mode: o.orientation,
+            },
             initial_mode: o.orientation,
             pose_t0: pose_info(&rest0[i]),
             pose_t1: keep
@@ -672,6 +655,7 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             t1: stats1,
             layout_attempts: attempts,
             static_snapped_t1: snapped,
+            t1_simulated_obj_ids: simulated,
             t0_seat_correction: seat,
         },
         render: RenderInfo {
@@ -684,12 +668,13 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         },
     };
     bop_writer::write_json(&dir.join("sequence.json"), &seq)?;
-    let stack_verified = seq.relation_t0.verified;
+    let relation_verified = seq.relation_t0.verified;
     Ok(Summary {
         out: dir.to_path_buf(),
         views,
         removed_obj_id: seq.removed_obj_id,
-        stack_verified,
+        relation: seq.relation_t0.kind,
+        relation_verified,
         physics_s,
         render_s,
         total_s: t_start.elapsed().as_secs_f64(),

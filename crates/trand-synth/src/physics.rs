@@ -15,7 +15,9 @@
 //! that were not standing on the table start awake, all others asleep ([`Wake`]), so only what is
 //! disturbed moves (chain reactions wake what they hit). Objects whose vertices all moved less than
 //! [`STATIC_SNAP_MM`] are snapped back to their t = 0 pose, so untouched objects are bit-identical
-//! between the states (as in the reference data).
+//! between the states (as in the reference data). Sleeping bodies do get woken, though, and then
+//! creep by millimetres to centimetres while anything else moves; [`settle_spreading`] keeps
+//! every object fixed until a moving one touches it instead.
 
 use glam::{Quat, Vec3};
 use rapier3d::prelude::*;
@@ -101,6 +103,19 @@ pub struct SettleStats {
     pub converged: bool,
 }
 
+impl SettleStats {
+    /// Two runs one after the other: steps add up, simulated time is `steps · dt`, and the
+    /// whole converged only if both did.
+    pub fn sum(a: &SettleStats, b: &SettleStats, params: &PhysicsParams) -> SettleStats {
+        let steps = a.steps + b.steps;
+        SettleStats {
+            steps,
+            seconds: steps as f32 * params.dt,
+            converged: a.converged && b.converged,
+        }
+    }
+}
+
 /// Contact and damping parameters (reported in `sequence.json`).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct PhysicsParams {
@@ -141,6 +156,131 @@ pub enum Wake {
     Fixed,
 }
 
+/// A simulation world with one rigid body per [`BodySpec`], in input order.
+struct World {
+    world: PhysicsWorld,
+    handles: Vec<RigidBodyHandle>,
+}
+
+impl World {
+    /// The table, then the bodies at their `start` poses.
+    fn new(bodies: &[BodySpec<'_>], start: &[Pose], wake: &[Wake], params: &PhysicsParams) -> Self {
+        let mut world = PhysicsWorld::new();
+        world.gravity = Vector::new(0.0, 0.0, -9.81);
+        world.integration_parameters.dt = params.dt;
+        world.integration_parameters.length_unit = params.length_unit;
+        let [hx, hy, hz] = TABLE_HALF;
+        world.insert(
+            RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -hz)),
+            ColliderBuilder::cuboid(hx, hy, hz)
+                .friction(params.friction)
+                .restitution(params.restitution),
+        );
+        let mut handles = Vec::with_capacity(bodies.len());
+        for ((b, p), w) in bodies.iter().zip(start).zip(wake) {
+            let collider = ColliderBuilder::convex_hull(b.hull_points)
+                .unwrap_or_else(|| ColliderBuilder::ball(0.01))
+                .mass(b.mass_kg)
+                .friction(params.friction)
+                .restitution(params.restitution);
+            let body = (if *w == Wake::Fixed {
+                RigidBodyBuilder::fixed()
+            } else {
+                RigidBodyBuilder::dynamic()
+            })
+            .pose(rapier3d::math::Pose::from_parts(p.translation, p.rotation))
+            .linear_damping(params.linear_damping)
+            .angular_damping(params.angular_damping)
+            .sleeping(*w == Wake::Asleep);
+            let handle = world.insert(body, collider).0;
+            if b.plate == Plate::OnModelBase {
+                let (c, h) = base_plate(b.hull_points);
+                let plate = ColliderBuilder::cuboid(h.x, h.y, h.z)
+                    .translation(c)
+                    .mass(0.0)
+                    .friction(params.friction)
+                    .restitution(params.restitution);
+                world.insert_collider(plate, Some(handle));
+            }
+            handles.push(handle);
+        }
+        Self { world, handles }
+    }
+
+    fn poses(&self) -> Vec<Pose> {
+        self.handles
+            .iter()
+            .map(|h| {
+                let b = &self.world.bodies[*h];
+                Pose {
+                    rotation: *b.rotation(),
+                    translation: b.translation(),
+                }
+            })
+            .collect()
+    }
+
+    /// Steps until every body is at rest (see [`settle`]) or `max_steps`; `after_step` sees
+    /// the world after every step.
+    fn run(
+        &mut self,
+        bodies: &[BodySpec<'_>],
+        params: &PhysicsParams,
+        mut after_step: impl FnMut(&World),
+    ) -> (Vec<Pose>, SettleStats) {
+        let mut last = self.poses();
+        let mut steps = 0;
+        let mut converged = false;
+        while steps < params.max_steps {
+            self.world.step();
+            after_step(self);
+            steps += 1;
+            if steps % CHECK_EVERY == 0 {
+                let now = self.poses();
+                let still = bodies.iter().zip(last.iter().zip(&now)).all(|(b, (a, c))| {
+                    max_vertex_displacement_mm(b.hull_points, a, c) < REST_TOL_MM
+                });
+                last = now;
+                if still && steps >= MIN_STEPS {
+                    converged = true;
+                    break;
+                }
+            }
+        }
+        (
+            last,
+            SettleStats {
+                steps,
+                seconds: steps as f32 * params.dt,
+                converged,
+            },
+        )
+    }
+
+    /// Indices of the fixed bodies that a body in `moving` is in contact with now.
+    fn touched_fixed(&self, moving: &[bool], into: &mut [bool]) {
+        let index_of = |h: RigidBodyHandle| self.handles.iter().position(|x| *x == h);
+        for (i, h) in self.handles.iter().enumerate().filter(|(i, _)| moving[*i]) {
+            for c in self.world.bodies[*h].colliders() {
+                for pair in self.world.narrow_phase.contact_pairs_with(*c) {
+                    if !pair.has_any_active_contact() {
+                        continue;
+                    }
+                    let other = if pair.collider1 == *c {
+                        pair.collider2
+                    } else {
+                        pair.collider1
+                    };
+                    let parent = self.world.colliders[other].parent();
+                    if let Some(j) = parent.and_then(index_of).filter(|&j| j != i && !moving[j]) {
+                        into[j] = true;
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Drops the bodies from `start` poses and returns their rest poses.
 ///
 /// Rest criterion (instead of rapier's own sleeping, which the contact creep of tall light
@@ -153,79 +293,45 @@ pub fn settle(
     wake: &[Wake],
     params: &PhysicsParams,
 ) -> (Vec<Pose>, SettleStats) {
-    let mut world = PhysicsWorld::new();
-    world.gravity = Vector::new(0.0, 0.0, -9.81);
-    world.integration_parameters.dt = params.dt;
-    world.integration_parameters.length_unit = params.length_unit;
-    let [hx, hy, hz] = TABLE_HALF;
-    world.insert(
-        RigidBodyBuilder::fixed().translation(Vector::new(0.0, 0.0, -hz)),
-        ColliderBuilder::cuboid(hx, hy, hz)
-            .friction(params.friction)
-            .restitution(params.restitution),
-    );
-    let mut handles = Vec::with_capacity(bodies.len());
-    for ((b, p), w) in bodies.iter().zip(start).zip(wake) {
-        let collider = ColliderBuilder::convex_hull(b.hull_points)
-            .unwrap_or_else(|| ColliderBuilder::ball(0.01))
-            .mass(b.mass_kg)
-            .friction(params.friction)
-            .restitution(params.restitution);
-        let body = (if *w == Wake::Fixed {
-            RigidBodyBuilder::fixed()
-        } else {
-            RigidBodyBuilder::dynamic()
-        })
-        .pose(rapier3d::math::Pose::from_parts(p.translation, p.rotation))
-        .linear_damping(params.linear_damping)
-        .angular_damping(params.angular_damping)
-        .sleeping(*w == Wake::Asleep);
-        let handle = world.insert(body, collider).0;
-        if b.plate == Plate::OnModelBase {
-            let (c, h) = base_plate(b.hull_points);
-            let plate = ColliderBuilder::cuboid(h.x, h.y, h.z)
-                .translation(c)
-                .mass(0.0)
-                .friction(params.friction)
-                .restitution(params.restitution);
-            world.insert_collider(plate, Some(handle));
-        }
-        handles.push(handle);
-    }
-    let pose_of = |world: &PhysicsWorld, h: RigidBodyHandle| {
-        let b = &world.bodies[h];
-        Pose {
-            rotation: *b.rotation(),
-            translation: b.translation(),
-        }
+    World::new(bodies, start, wake, params).run(bodies, params, |_| {})
+}
+
+/// Settles with only the bodies marked in `moving` simulated and every other body fixed,
+/// widening the moving set by contact: when a moving body touches a fixed one, that body joins
+/// the moving set and the whole simulation restarts from `start`, until a run touches nothing
+/// new. Returns the rest poses, the stats summed over all runs, and the final moving set.
+///
+/// A resting object that nothing touches then keeps its pose exactly. Simulating it instead (as
+/// a sleeping body that rapier may wake) lets rapier's contact creep walk it across the table
+/// by millimetres to centimetres while something else is still moving.
+pub fn settle_spreading(
+    bodies: &[BodySpec<'_>],
+    start: &[Pose],
+    moving: &[bool],
+    params: &PhysicsParams,
+) -> (Vec<Pose>, SettleStats, Vec<bool>) {
+    let mut moving = moving.to_vec();
+    let mut total = SettleStats {
+        steps: 0,
+        seconds: 0.0,
+        converged: true,
     };
-    let mut last: Vec<Pose> = handles.iter().map(|h| pose_of(&world, *h)).collect();
-    let mut steps = 0;
-    let mut converged = false;
-    while steps < params.max_steps {
-        world.step();
-        steps += 1;
-        if steps % CHECK_EVERY == 0 {
-            let now: Vec<Pose> = handles.iter().map(|h| pose_of(&world, *h)).collect();
-            let still = bodies
-                .iter()
-                .zip(last.iter().zip(&now))
-                .all(|(b, (a, c))| max_vertex_displacement_mm(b.hull_points, a, c) < REST_TOL_MM);
-            last = now;
-            if still && steps >= MIN_STEPS {
-                converged = true;
-                break;
-            }
+    loop {
+        let wake: Vec<Wake> = moving
+            .iter()
+            .map(|&m| if m { Wake::Awake } else { Wake::Fixed })
+            .collect();
+        let mut touched = vec![false; bodies.len()];
+        let (rest, stats) = World::new(bodies, start, &wake, params)
+            .run(bodies, params, |w| w.touched_fixed(&moving, &mut touched));
+        total = SettleStats::sum(&total, &stats, params);
+        if !touched.iter().any(|&t| t) {
+            return (rest, total, moving);
+        }
+        for (m, t) in moving.iter_mut().zip(&touched) {
+            *m |= *t;
         }
     }
-    (
-        last,
-        SettleStats {
-            steps,
-            seconds: steps as f32 * params.dt,
-            converged,
-        },
-    )
 }
 
 /// Largest displacement (mm) of any of `points` between two poses.

@@ -1,6 +1,7 @@
 //! `sequence.json`: what was generated and why (field names as in the reference data).
 
 use crate::cameras::RingInfo;
+use crate::layout::{Orientation, RelationKind};
 use crate::material::Material;
 use crate::physics::{PhysicsParams, SettleStats};
 use crate::scene::Environment;
@@ -70,23 +71,41 @@ pub struct ObjectInfo {
     pub model: String,
     pub material: Material,
     pub mass_kg: f32,
-    pub params_m: BTreeMap<&'static str, f32>,
-    pub initial_mode: crate::layout::Orientation,
+    pub params_m: ParamsInfo,
+    pub initial_mode: Orientation,
     pub pose_t0: PoseInfo,
     pub pose_t1: Option<PoseInfo>,
     pub removed_at_t1: bool,
 }
 
+/// An object's dimensions and how it starts (the reference data keeps both in `params_m`).
+#[derive(Serialize)]
+pub struct ParamsInfo {
+    #[serde(flatten)]
+    pub dimensions_m: BTreeMap<&'static str, f32>,
+    pub initial_mode: Orientation,
+}
+
+/// How the supported object of the t = 1 event rests on its support at t = 0.
 #[derive(Clone, Serialize)]
 pub struct Relation {
     #[serde(rename = "type")]
-    pub kind: &'static str,
+    pub kind: RelationKind,
     pub support_obj_id: u32,
     pub supported_obj_id: u32,
+    /// Signed distance between the collision hulls (negative: they overlap).
+    pub contact_distance_mm: f32,
+    /// Gap between the render meshes.
+    pub mesh_distance_mm: f32,
     pub supported_min_z_mm: f32,
+    /// Angle between the supported object's axis and the vertical.
     pub supported_tilt_deg: f32,
     pub all_on_table: bool,
     pub verified: bool,
+    /// Restoring over overturning moment of a free support under the leaning object (leans:
+    /// [`crate::lean::support_tipping_margin`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub support_tipping_margin: Option<f32>,
 }
 
 #[derive(Serialize)]
@@ -114,6 +133,10 @@ pub struct PhysicsInfo {
     pub t1: SettleStats,
     pub layout_attempts: Vec<Relation>,
     pub static_snapped_t1: Vec<u32>,
+    /// The objects simulated at t = 1 when only those touched by a moving one are
+    /// ([`crate::T1Motion::SpreadByContact`]); all others kept their t = 0 pose.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub t1_simulated_obj_ids: Option<Vec<u32>>,
     /// Contact projection applied to the supported object at t = 0 (null if none).
     pub t0_seat_correction: Option<SeatCorrection>,
 }

@@ -72,6 +72,18 @@ impl Mesh {
             })
             .sum()
     }
+
+    /// Centre of mass of the enclosed solid (uniform density, closed meshes): the tetrahedra
+    /// from the origin to each triangle, weighted by their signed volumes,
+    /// `c = Σ V_t (a + b + c) / 4 / Σ V_t` with `V_t = a · (b × c) / 6`.
+    pub fn centroid(&self) -> Vec3 {
+        let (moment, volume) = self.triangles.iter().fold((Vec3::ZERO, 0.0), |(m, v), t| {
+            let [a, b, c] = t.map(|i| self.positions[i as usize]);
+            let vt = a.dot(b.cross(c)) / 6.0;
+            (m + vt * (a + b + c) / 4.0, v + vt)
+        });
+        moment / volume
+    }
 }
 
 /// Revolves a closed profile about the z axis. `profile` runs from the axis (r = 0) to the axis;
@@ -244,26 +256,44 @@ pub const HULL_SLICES: u32 = 24;
 pub const HULL_SIMPLIFY_M: f32 = 3e-4;
 
 /// Removes polygon vertices within `tol` of the chord between their neighbours, repeatedly
-/// (closed polygon, counter-clockwise).
-fn simplify_closed(mut poly: Vec<Vec2>, tol: f32) -> Vec<Vec2> {
+/// (closed polygon, counter-clockwise), except those in `pinned`.
+fn simplify_closed(mut poly: Vec<Vec2>, tol: f32, pinned: &[Vec2]) -> Vec<Vec2> {
     loop {
         let n = poly.len();
         if n <= 3 {
             return poly;
         }
-        let flattest = (0..n)
+        let Some(flattest) = (0..n)
+            .filter(|&i| !pinned.contains(&poly[i]))
             .map(|i| {
                 let (a, p, b) = (poly[(i + n - 1) % n], poly[i], poly[(i + 1) % n]);
                 let ab = b - a;
                 (i, (p - a).perp_dot(ab).abs() / ab.length().max(1e-12))
             })
             .min_by(|x, y| x.1.total_cmp(&y.1))
-            .expect("n > 3");
+        else {
+            return poly;
+        };
         if flattest.1 >= tol {
             return poly;
         }
         poly.remove(flattest.0);
     }
+}
+
+/// The outermost vertices (largest `|x|`) of the lowest and of the highest row of a polygon:
+/// the rims of the faces an object stands on upright or upside down.
+fn extreme_corners(poly: &[Vec2]) -> Vec<Vec2> {
+    let (lo, hi) = poly.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| {
+        (lo.min(p.y), hi.max(p.y))
+    });
+    let mut corners = Vec::new();
+    for y in [lo, hi] {
+        let row = poly.iter().filter(|p| p.y == y);
+        let widest = row.clone().map(|p| p.x.abs()).fold(0.0, f32::max);
+        corners.extend(row.filter(|p| p.x.abs() == widest));
+    }
+    corners
 }
 
 /// 2D convex hull (Andrew's monotone chain), counter-clockwise.
@@ -293,16 +323,41 @@ fn hull_2d(mut pts: Vec<Vec2>) -> Vec<Vec2> {
     h
 }
 
+/// How the revolved collision polygon sits against the round surface it stands for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HullFit {
+    /// Ring vertices on the profile radius `r`: the polygon's faces lie up to
+    /// `r (1 − cos(π/n))` inside the surface (0.26 mm at r = 3 cm, n = 24), which is harmless
+    /// for objects standing on flat faces.
+    Inscribed,
+    /// Ring vertices at `r / cos(π/n)`: every face touches the surface (apothem `r`), so the
+    /// render mesh does not poke out of its hull sideways; and the simplification keeps the
+    /// outer corners of the base and the top (`extreme_corners`), so it does not poke out
+    /// below either. Objects that rest on their round side (lying, leaning) need it, or their
+    /// glass would sink into the table or their support.
+    Circumscribed,
+}
+
 /// Collision points of a lathed profile: the 2D hull of the profile (together with its mirror
 /// image across the axis, so the hull is that of the solid of revolution), revolved with
-/// [`HULL_SLICES`] samples, plus every 4th point of any extra part (the mug handle).
-pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
+/// [`HULL_SLICES`] samples placed as `fit` says, plus every 4th point of any extra part (the mug
+/// handle).
+pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>, fit: HullFit) -> Vec<Vec3> {
+    let ring_scale = match fit {
+        HullFit::Inscribed => 1.0,
+        HullFit::Circumscribed => 1.0 / (PI / HULL_SLICES as f32).cos(),
+    };
     let mirrored: Vec<Vec2> = profile
         .iter()
         .flat_map(|p| [*p, Vec2::new(-p.x, p.y)])
         .collect();
     let mut pts = Vec::new();
-    for q in simplify_closed(hull_2d(mirrored), HULL_SIMPLIFY_M)
+    let hull = hull_2d(mirrored);
+    let pinned = match fit {
+        HullFit::Inscribed => Vec::new(),
+        HullFit::Circumscribed => extreme_corners(&hull),
+    };
+    for q in simplify_closed(hull, HULL_SIMPLIFY_M, &pinned)
         .into_iter()
         .filter(|q| q.x >= 0.0)
     {
@@ -310,9 +365,10 @@ pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
             pts.push(Vec3::new(0.0, 0.0, q.y));
             continue;
         }
+        let r = q.x * ring_scale;
         for k in 0..HULL_SLICES {
             let phi = TAU * k as f32 / HULL_SLICES as f32;
-            pts.push(Vec3::new(q.x * phi.cos(), q.x * phi.sin(), q.y));
+            pts.push(Vec3::new(r * phi.cos(), r * phi.sin(), q.y));
         }
     }
     if let Some(e) = extra {
@@ -321,8 +377,14 @@ pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>) -> Vec<Vec3> {
     pts
 }
 
-/// Samples a model of `kind` with random proportions (lengths in metres, like real glassware).
+/// Samples a model of `kind` with random proportions (lengths in metres, like real glassware)
+/// and an inscribed collision hull ([`HullFit::Inscribed`]).
 pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
+    build_fitted(kind, rng, slices, HullFit::Inscribed)
+}
+
+/// [`build`] with a chosen collision-hull fit.
+pub fn build_fitted(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32, fit: HullFit) -> Model {
     let mut u = |a: f32, b: f32| rng.random_range(a..b);
     let (profile, mut params, extra) = match kind {
         ShapeKind::Tumbler => {
@@ -418,7 +480,7 @@ pub fn build(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32) -> Model {
         }
     };
     let mut mesh = lathe(&profile, slices);
-    let mut hull_points = collision_points(&profile, extra.as_ref());
+    let mut hull_points = collision_points(&profile, extra.as_ref(), fit);
     if let Some(h) = extra {
         mesh.append(&h);
     }
@@ -539,6 +601,11 @@ mod tests {
             (m.volume() - exact).abs() / exact < 2e-3,
             "{} vs {exact}",
             m.volume()
+        );
+        let c = m.centroid();
+        assert!(
+            (c - Vec3::new(0.0, 0.0, 0.025)).length() < 1e-6,
+            "centroid {c}"
         );
     }
 

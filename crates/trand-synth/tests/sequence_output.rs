@@ -6,7 +6,7 @@ use glam::{DMat3, DVec3};
 use serde_json::Value;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use trand_synth::{ExistingOutput, Preset, SynthConfig, SynthError, generate};
+use trand_synth::{ExistingOutput, ObjectCount, Preset, SynthConfig, SynthError, generate};
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("trand-synth-test-{}-{name}", std::process::id()));
@@ -228,7 +228,7 @@ fn output_layout_matches_the_reference_blender_sequence() {
     let dir = scratch("layout");
     let out = dir.join("seq");
     let mut cfg = tiny(101, &out);
-    cfg.objects = 4;
+    cfg.objects = ObjectCount::Exactly(4);
     generate(&cfg).unwrap();
     let names = |p: &Path| -> BTreeSet<String> {
         std::fs::read_dir(p)
@@ -376,8 +376,14 @@ fn bad_settings_and_occupied_outputs_fail_with_a_named_reason_and_leave_nothing(
             Box::new(|c: &mut SynthConfig| c.width = 0) as Box<dyn Fn(&mut SynthConfig)>,
         ),
         ("height", Box::new(|c: &mut SynthConfig| c.height = 0)),
-        ("objects", Box::new(|c: &mut SynthConfig| c.objects = 0)),
-        ("objects", Box::new(|c: &mut SynthConfig| c.objects = 7)),
+        (
+            "objects",
+            Box::new(|c: &mut SynthConfig| c.objects = ObjectCount::Exactly(0)),
+        ),
+        (
+            "objects",
+            Box::new(|c: &mut SynthConfig| c.objects = ObjectCount::Exactly(7)),
+        ),
     ] {
         let mut c = tiny(1, &out);
         edit(&mut c);

@@ -31,6 +31,8 @@ pub enum SynthPreset {
     Default,
     /// 160x120, few views: seconds per sequence.
     Tiny,
+    /// 640x480, upright open containers, lying tumblers, a lean or a stack removed at t=1.
+    Containers,
 }
 
 impl SynthPreset {
@@ -38,6 +40,7 @@ impl SynthPreset {
         match self {
             SynthPreset::Default => "default",
             SynthPreset::Tiny => "tiny",
+            SynthPreset::Containers => "containers",
         }
     }
 }
@@ -47,12 +50,13 @@ impl SynthPreset {
 pub struct Args {
     #[command(subcommand)]
     pub sub: Option<Sub>,
-    /// Sequence folders to benchmark.
-    #[arg(long, num_args = 1.., required_unless_present = "synth", conflicts_with = "synth")]
+    /// Sequence folders to benchmark (with --synth: besides the generated ones).
+    #[arg(long, num_args = 1.., required_unless_present = "synth")]
     pub data: Vec<PathBuf>,
     /// Benchmark N generated sequences (`trand synth --seed 1000+i`), kept under OUT/data/.
     #[arg(long, value_name = "N")]
     pub synth: Option<u32>,
+    /// `trand synth --preset` of the generated sequences.
     #[arg(long, value_enum, default_value = "default")]
     pub synth_preset: SynthPreset,
     /// Report folder (created; an existing one is resumed).
@@ -228,11 +232,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let out = a.out.context("--out is required")?;
     let bin = trand_bin(a.trand_bin)?;
-    let sequences = match a.synth {
+    let mut sequences = match a.synth {
         Some(0) => anyhow::bail!("--synth 0: benchmark at least one sequence"),
         Some(n) => data::synth_entries(n, a.synth_preset),
-        None => data::folder_entries(&a.data)?,
+        None => Vec::new(),
     };
+    sequences.extend(data::folder_entries(&a.data)?);
+    data::ensure_unique_names(&sequences)?;
     let methods = if a.methods.is_empty() {
         Method::ALL.to_vec()
     } else {

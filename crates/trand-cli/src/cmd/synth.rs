@@ -1,14 +1,30 @@
 //! `trand synth`: generate one synthetic transparent-object sequence (BOP layout, exact GT).
 
 use std::path::PathBuf;
-use trand_synth::{ExistingOutput, Preset, Progress, SynthConfig};
+use trand_synth::{ExistingOutput, ObjectCount, Preset, Progress, SynthConfig};
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum PresetArg {
-    /// 640x480, 4 objects, 30 test views per state.
+    /// 640x480, 4 objects (a stacked pair among random ones), 30 test views per state.
     Default,
     /// 160x120, 3 objects, 3 test views per state, few samples (seconds; for tests).
     Tiny,
+    /// 640x480, 3-6 objects: upright open bowls, mugs and wine glasses, lying tumblers, and an
+    /// object leaning against or stacked on the one removed at t=1; 10 test views per state.
+    Containers,
+    /// The containers scenes at 160x120, 3 test views per state (seconds; for tests).
+    ContainersTiny,
+}
+
+impl PresetArg {
+    pub fn preset(self) -> Preset {
+        match self {
+            PresetArg::Default => Preset::Default,
+            PresetArg::Tiny => Preset::Tiny,
+            PresetArg::Containers => Preset::Containers,
+            PresetArg::ContainersTiny => Preset::ContainersTiny,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -21,7 +37,7 @@ pub struct Args {
     out: PathBuf,
     #[arg(long, value_enum, default_value = "default")]
     preset: PresetArg,
-    /// Number of objects (2 to 6); overrides the preset.
+    /// Number of objects (2 to 6; 3 to 6 for the containers presets); overrides the preset.
     #[arg(long)]
     objects: Option<u32>,
     /// Image width in pixels; overrides the preset.
@@ -45,12 +61,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let preset = match a.preset {
-        PresetArg::Default => Preset::Default,
-        PresetArg::Tiny => Preset::Tiny,
-    };
-    let mut c = SynthConfig::new(preset, a.seed, a.out);
-    c.objects = a.objects.unwrap_or(c.objects);
+    let mut c = SynthConfig::new(a.preset.preset(), a.seed, a.out);
+    c.objects = a.objects.map_or(c.objects, ObjectCount::Exactly);
     c.width = a.width.unwrap_or(c.width);
     c.height = a.height.unwrap_or(c.height);
     c.test_views = a.test_views.unwrap_or(c.test_views);
@@ -67,11 +79,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let s = trand_synth::generate(&c)?;
     println!(
-        "wrote {} views to {} (removed object {}, stack {}) in {:.1} s (physics {:.1} s, render+write {:.1} s)",
+        "wrote {} views to {} (removed object {}, {} {}) in {:.1} s (physics {:.1} s, render+write {:.1} s)",
         s.views,
         s.out.display(),
         s.removed_obj_id,
-        if s.stack_verified {
+        s.relation.name(),
+        if s.relation_verified {
             "verified"
         } else {
             "not verified"

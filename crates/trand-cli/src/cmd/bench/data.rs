@@ -1,6 +1,7 @@
-//! The sequences of a bench: `--data` folders (named by their folder name) or `--synth N` sequences
-//! `synth_<1000+i>`, generated once by `trand synth` into `REPORT/data/<name>` (a finished sequence has
-//! `sequence.json`; generation goes to `<name>.partial` and is renamed when done).
+//! The sequences of a bench: `--data` folders (named by their folder name) and `--synth N` sequences
+//! `synth_<1000+i>` (`containers_<1000+i>` for the containers preset), generated once by `trand synth`
+//! into `REPORT/data/<name>` (a finished sequence has `sequence.json`; generation goes to
+//! `<name>.partial` and is renamed when done).
 
 use std::path::{Path, PathBuf};
 
@@ -17,7 +18,10 @@ pub fn synth_entries(n: u32, preset: SynthPreset) -> Vec<SequenceEntry> {
     (0..n as u64)
         .map(|i| {
             let seed = SYNTH_SEED0 + i;
-            let name = format!("synth_{seed}");
+            let name = match preset {
+                SynthPreset::Default | SynthPreset::Tiny => format!("synth_{seed}"),
+                SynthPreset::Containers => format!("containers_{seed}"),
+            };
             SequenceEntry {
                 data: Path::new(DATA_DIR).join(&name),
                 name,
@@ -60,6 +64,20 @@ pub fn folder_entries(paths: &[PathBuf]) -> anyhow::Result<Vec<SequenceEntry>> {
         });
     }
     Ok(out)
+}
+
+/// Fails when two sequences share a name (a `--data` folder named like a generated sequence).
+pub fn ensure_unique_names(entries: &[SequenceEntry]) -> anyhow::Result<()> {
+    for (i, e) in entries.iter().enumerate() {
+        if entries[..i].iter().any(|o| o.name == e.name) {
+            anyhow::bail!(
+                "two sequences are named `{}` ({}); sequence names must be unique",
+                e.name,
+                e.data.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Makes sure a sequence exists on disk, generating it if it is a synthetic one not yet made.
