@@ -184,6 +184,40 @@ fn a_failed_step_is_logged_and_the_bench_goes_on_but_exits_non_zero() {
 }
 
 #[test]
+fn generated_and_folder_sequences_are_benchmarked_together() {
+    let f = Fixture::new("bench-mixed");
+    let out = f.path().join("report");
+    let a = f.seq("seq_a");
+    let o = f.trand(
+        &[
+            "bench",
+            "--synth",
+            "1",
+            "--synth-preset",
+            "containers",
+            "--data",
+            s(&a),
+            "--out",
+            s(&out),
+            "--methods",
+            "trand",
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert_eq!(f.calls().iter().filter(|c| *c == "synth").count(), 1);
+    for seq in ["containers_1000", "seq_a"] {
+        assert!(
+            out.join(format!("runs/{seq}/trand/t1/metrics.json"))
+                .is_file(),
+            "{seq}: {}",
+            text(&o)
+        );
+    }
+    assert!(out.join("data/containers_1000/sequence.json").is_file());
+}
+
+#[test]
 fn bad_input_is_a_clear_error() {
     let f = Fixture::new("bench-bad");
     let a = f.seq("seq_a");
