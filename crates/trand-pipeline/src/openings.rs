@@ -78,6 +78,8 @@ pub const MAX_STEM_RATIO: f64 = 0.35;
 pub const MIN_CUP_RIM_RATIO: f64 = 0.75;
 /// Angular sectors of the radial profile; the median over sectors ignores a handle.
 const SECTORS: usize = 16;
+/// Slices below the roof's start whose widest gives the rim radius.
+const RIM_WINDOW: usize = 4;
 /// Slices (of [`VOXEL_M`]) compared by the roof test.
 const ROOF_RUN: usize = 4;
 /// An object needs this many voxels for a profile.
@@ -169,7 +171,13 @@ impl Profile {
         let middle_centre = median_point(&middle).unwrap_or(axis);
         let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
         let lean = (middle_centre - axis).length() / (0.4 * height);
-        let radius = by_slice.iter().map(|s| sector_radius(s, axis)).collect();
+        // The hull ends at its first empty slice: voxels above a gap are strays (label noise at
+        // occlusions), not the object's top.
+        let end = by_slice.iter().position(|s| s.is_empty()).unwrap_or(slices);
+        let radius = by_slice[..end]
+            .iter()
+            .map(|s| sector_radius(s, axis))
+            .collect();
         Some(Self {
             axis: axis.to_array(),
             z0,
@@ -179,11 +187,16 @@ impl Profile {
     }
 
     /// Index of the rim slice: the highest slice below the roof. The roof is the run of top slices
-    /// each narrower by at least `slope · ROOF_RUN · VOXEL_M` than the slice `ROOF_RUN` below it.
+    /// each narrower by at least `slope · ROOF_RUN · VOXEL_M` than the slice `ROOF_RUN` below it, or
+    /// at most two voxels wide (its apex).
     pub fn rim_slice(&self, slope: f64) -> usize {
         let drop = slope * ROOF_RUN as f64 * VOXEL_M;
         let mut k = self.radius.len() - 1;
-        while k >= ROOF_RUN && self.radius[k] < self.radius[k - ROOF_RUN] - drop {
+        // The apex of a roof is a few voxels wide: its slices count as roof whatever lies below.
+        while k >= ROOF_RUN
+            && (self.radius[k] <= 2.0 * VOXEL_M
+                || self.radius[k] < self.radius[k - ROOF_RUN] - drop)
+        {
             k -= 1;
         }
         k
@@ -435,7 +448,8 @@ fn open_top(
     let centre = axis.extend(profile.z0 + 0.5 * profile.radius.len() as f64 * VOXEL_M);
     let elevation = max_elevation(cameras, centre).max(0.1);
     let rim = profile.rim_slice(0.5 / elevation.tan());
-    let rim_radius = profile.radius[rim.saturating_sub(2)..=rim]
+    // The widest of the last 10 mm below the roof: the roof of a few views starts shallow at its edge.
+    let rim_radius = profile.radius[rim.saturating_sub(RIM_WINDOW)..=rim]
         .iter()
         .fold(0.0f64, |a, &b| a.max(b));
     if rim_radius < MIN_RIM_RADIUS_M {
