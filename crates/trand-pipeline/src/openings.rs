@@ -76,6 +76,9 @@ pub const MAX_STEM_RATIO: f64 = 0.35;
 /// A stemmed cup's rim is at least this fraction of its widest slice (a wine glass's bowl closes in
 /// towards the rim; an upturned one shows its foot, far narrower than its bowl, on top).
 pub const MIN_CUP_RIM_RATIO: f64 = 0.75;
+/// Largest [`Profile::elongation`] of a standing vessel: a mug's handle stretches its footprint a
+/// little.
+pub const MAX_ELONGATION: f64 = 1.3;
 /// Angular sectors of the radial profile; the median over sectors ignores a handle.
 const SECTORS: usize = 16;
 /// Slices below the roof's start whose widest gives the rim radius.
@@ -145,6 +148,9 @@ pub struct Profile {
     pub z0: f64,
     /// Median over sectors of the largest radius in each sector, per slice (0 for an empty slice).
     pub radius: Vec<f64>,
+    /// Elongation of the footprint: `√(λ₁/λ₂)` of the covariance of the voxels' (x, y), 1 for a
+    /// round object; a tumbler lying on its side is its length over its diameter (1.2–1.8).
+    pub elongation: f64,
     /// Horizontal drift of the slice centres per unit height (0 for a vertical axis).
     pub lean: f64,
 }
@@ -178,7 +184,9 @@ impl Profile {
             .iter()
             .map(|s| sector_radius(s, axis))
             .collect();
+        let elongation = elongation(&by_slice[..end].concat());
         Some(Self {
+            elongation,
             axis: axis.to_array(),
             z0,
             radius,
@@ -236,8 +244,31 @@ fn median_point(pts: &[DVec2]) -> Option<DVec2> {
 /// Median over [`SECTORS`] angular sectors of the largest distance from `axis` (empty sectors count
 /// as 0), plus half a voxel for the voxel's own extent.
 fn sector_radius(pts: &[DVec2], axis: DVec2) -> f64 {
+    let far = sector_extents(pts, axis);
+    0.5 * (far[SECTORS / 2 - 1] + far[SECTORS / 2]) + 0.5 * VOXEL_M
+}
+
+/// `√(λ₁/λ₂)` of the 2×2 covariance of `pts` (see [`Profile::elongation`]).
+fn elongation(pts: &[DVec2]) -> f64 {
+    let n = pts.len().max(1) as f64;
+    let m = pts.iter().fold(DVec2::ZERO, |a, p| a + *p) / n;
+    let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let d = *p - m;
+        xx += d.x * d.x;
+        xy += d.x * d.y;
+        yy += d.y * d.y;
+    }
+    let (t, det) = ((xx + yy) / n, (xx * yy - xy * xy) / (n * n));
+    let disc = (0.25 * t * t - det).max(0.0).sqrt();
+    ((0.5 * t + disc) / (0.5 * t - disc).max(1e-12)).sqrt()
+}
+
+/// The largest distance from `axis` in each of [`SECTORS`] angular sectors (0 for empty ones),
+/// ascending.
+fn sector_extents(pts: &[DVec2], axis: DVec2) -> [f64; SECTORS] {
     if pts.is_empty() {
-        return 0.0;
+        return [0.0; SECTORS];
     }
     let mut far = [0.0f64; SECTORS];
     for p in pts {
@@ -247,7 +278,7 @@ fn sector_radius(pts: &[DVec2], axis: DVec2) -> f64 {
         far[s] = far[s].max(d.length());
     }
     far.sort_by(f64::total_cmp);
-    0.5 * (far[SECTORS / 2 - 1] + far[SECTORS / 2]) + 0.5 * VOXEL_M
+    far
 }
 
 /// Why an object's top is not carved.
@@ -268,6 +299,9 @@ pub enum Closed {
     Supports,
     /// It rests on another object (see [`ON_TABLE_M`]).
     Stacked,
+    /// Its footprint is oblong ([`MAX_ELONGATION`]), not a standing vessel's circle: an object lying
+    /// on its side.
+    NotRound,
 }
 
 /// The carved region of an open vessel (world frame, z up).
@@ -454,6 +488,9 @@ fn open_top(
         .fold(0.0f64, |a, &b| a.max(b));
     if rim_radius < MIN_RIM_RADIUS_M {
         return Err(Closed::NarrowTop);
+    }
+    if profile.elongation > MAX_ELONGATION {
+        return Err(Closed::NotRound);
     }
     let shape = vessel_shape(&profile, rim, rim_radius)?;
     let rim_z = profile.slice_top(rim);
