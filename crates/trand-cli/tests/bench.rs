@@ -311,8 +311,9 @@ fn every_image_and_link_of_the_report_exists() {
     assert!(o.status.success(), "{}", text(&o));
     let n = check_links(&out);
     let page = std::fs::read_to_string(out.join("seq/seq_a.html")).unwrap();
-    // 4 training thumbnails, and per state 2 views × (4 written images + the run's object map).
-    assert_eq!(page.matches("<img").count(), 4 + 2 * 2 * 5, "{page}");
+    // 4 training thumbnails, and per state 2 views × (5 written images: GT and rendered depth,
+    // absolute and signed error, GT objects; + the run's object map).
+    assert_eq!(page.matches("<img").count(), 4 + 2 * 2 * 6, "{page}");
     assert!(n >= 2 * 24 + 4, "{n}");
     for plot in [
         "|error| of trand at t0",
@@ -322,11 +323,13 @@ fn every_image_and_link_of_the_report_exists() {
     ] {
         assert!(page.contains(plot), "{plot}");
     }
+    assert!(page.contains("t0, per object"), "per-object table");
     let index = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(
         index.contains("<td>trand t0</td><td>0.0050</td>"),
         "{index}"
     );
+    assert!(index.contains("per object kind"), "per-kind section");
 }
 
 #[test]
