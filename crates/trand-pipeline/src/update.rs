@@ -11,8 +11,11 @@
 //! 4. **Particles**: object surfel centres plus mesh vertices (optional interior fill).
 //! 5. **MLS-MPM**, all objects in one solver; each surfel moves with its particle (optionally also
 //!    rotating by the particle's polar rotation).
-//! 6. **Relocalisation** (trand's addition, [`crate::relocalise`]): an object whose silhouette now
-//!    misses its instance mask in the new image is moved rigidly to fit it.
+//! 6. **Relocalisation** (trand's addition, [`crate::relocalise`]): every object the simulation could
+//!    move is searched for the pose at rest (on the table or on the other objects, in any
+//!    orientation) that best explains its instance mask and colours in the new image, with the
+//!    simulated pose as a prior; it replaces the simulated pose only when clearly better. An object the
+//!    simulation could not move is searched only when its silhouette misses its mask.
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
 //!    object lr 0.1, densification with the t = 0 scene extent).
 
@@ -25,7 +28,7 @@ use trand_render::{GeometryMaps, Maps, RenderSettings};
 use trand_train::config::TrainConfig;
 
 pub use crate::detect::{Identity, Match, detect};
-use crate::relocalise::{Relocalise, Relocation, relocalise};
+use crate::relocalise::{NewImage, Object, Relocalise, Relocation, relocalise};
 use crate::simulate::channel_probs;
 pub use crate::simulate::{MeshDepth, SurfelMotion, simulate, virtual_cameras};
 use crate::targets::{self, Supervision};
@@ -209,6 +212,9 @@ pub fn update(
         &crate::contact::object_centres(&surfels, channels),
         &removed,
     );
+    let relocalising = opts.relocalise == Stage::On && object_aware;
+    // The removed objects as they were, for the relocalisation's t = 0 scene.
+    let mut removed_surfels: Vec<Surfels> = Vec::new();
     let before = surfels.len();
     for &id in &removed {
         let c = channels
@@ -218,6 +224,10 @@ pub fn update(
             .1;
         let p = channel_probs(&surfels, c);
         let keep: Vec<bool> = p.iter().map(|&v| v <= 0.5).collect();
+        if relocalising {
+            let idx: Vec<usize> = (0..p.len()).filter(|&i| !keep[i]).collect();
+            removed_surfels.push(surfels.gather(&idx));
+        }
         surfels.retain(&keep);
     }
     let deleted = before - surfels.len();
@@ -229,7 +239,6 @@ pub fn update(
         .filter(|c| !removed.contains(&c.0))
         .collect();
     // The undeformed shapes, for the relocalisation's candidates (only copied when it will run).
-    let relocalising = opts.relocalise == Stage::On && object_aware;
     let unmoved = relocalising.then(|| surfels.clone());
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
@@ -250,30 +259,36 @@ pub fn update(
     let t_reloc = Instant::now();
     let mut relocations = Vec::new();
     if let (Some(unmoved), Some(inst)) = (&unmoved, new_view.instance.as_ref()) {
-        let objects: Vec<(u16, Vec<u32>, u16)> = remaining
+        let objects: Vec<Object> = remaining
             .iter()
             .filter_map(|&(id, c)| {
                 let new_id = matches.iter().find(|m| m.object_id == id)?.new_id?;
                 let p = channel_probs(&surfels, c);
-                Some((
+                Some(Object {
                     id,
-                    (0..surfels.len() as u32)
+                    surfels: (0..surfels.len() as u32)
                         .filter(|&i| p[i as usize] > 0.5)
                         .collect(),
                     new_id,
-                ))
+                })
             })
             .collect();
         let ground = match opts.mpm.ground {
             trand_physics::Ground::Sticky { height } => height as f64,
             trand_physics::Ground::None => 0.0,
         };
+        let image = NewImage {
+            camera: &new_view.camera,
+            instance: inst,
+            rgb: new_view.rgb.as_ref(),
+        };
         relocations = relocalise(
             &mut surfels,
             unmoved,
+            &removed_surfels,
             &objects,
-            &new_view.camera,
-            inst,
+            &movable,
+            &image,
             ground,
             &settings,
             &opts.relocalise_settings,

@@ -33,8 +33,9 @@ pub struct Args {
     /// Single-image refinement: on (default) or off ("physics only").
     #[arg(long, value_parser = parse_stage)]
     pub refine: Option<Stage>,
-    /// Silhouette relocalisation after the simulation: on (default) moves an object whose silhouette
-    /// misses its instance mask to fit it; off keeps the simulated pose.
+    /// Relocalisation after the simulation: on (default) searches the resting poses of the objects the
+    /// simulation could move (and of any whose silhouette misses its mask) against the new image's
+    /// mask and colours; off keeps the simulated pose.
     #[arg(long, value_parser = parse_stage)]
     pub relocalise: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
@@ -346,9 +347,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .filter(|r| r.moved)
         .collect::<Vec<_>>()
     {
+        let (before, after) = (
+            r.score_before.map_or(f64::NAN, |s| s.total),
+            r.score_after.map_or(f64::NAN, |s| s.total),
+        );
         println!(
-            "object {} relocalised to its mask: IoU {:.2} -> {:.2}",
-            r.object_id, r.iou_before, r.iou_after
+            "object {} relocalised: score {before:.2} -> {after:.2}, IoU {:.2} -> {:.2}, tilted {:.0}° from its t=0 vertical",
+            r.object_id,
+            r.iou_before,
+            r.iou_after,
+            r.chosen.map_or(0.0, |c| c.tilt_deg)
         );
     }
     if up.removed.is_empty() {

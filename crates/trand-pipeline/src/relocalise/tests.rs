@@ -1,0 +1,248 @@
+//! Relocalisation end to end on hand-built scenes: a glass leaning on a block, one simulated inside it,
+//! one at rest, one that rolled away, one that did not move.
+
+use super::*;
+use crate::test_scene::{HEIGHT, RADIUS, block, camera, cylinder};
+use glam::DQuat;
+use trand_render::render;
+
+/// Mask ids of the glass and of the block in the new image.
+const GLASS: u16 = 7;
+const BLOCK: u16 = 9;
+
+/// The test glass with a colour that changes with height (so the image tells its ends apart).
+fn glass() -> Surfels {
+    let mut s = cylinder(0.0, 0.0, 0);
+    for (m, c) in s.means.iter().zip(s.sh_dc.iter_mut()) {
+        let f = m[2] / HEIGHT;
+        *c = [2.0 * f - 1.0, 0.3, 1.0 - 2.0 * f];
+    }
+    s
+}
+
+/// The block the glass can lean on: 4 cm thick from x = 10 cm, 12 cm tall.
+fn wall() -> Surfels {
+    block(0.10, -0.05, 0.14, 0.05, 0.12, 1)
+}
+
+/// The new image of `objects` (surfels, mask id) seen from `camera()`: instance ids of the nearest
+/// object with `α > ½` at each pixel, and the rendered colours of the whole scene.
+fn image_of(objects: &[(&Surfels, u16)]) -> (InstanceMap, Rgb8Image) {
+    let cam = camera();
+    let n = cam.intrinsics.num_pixels();
+    let (mut ids, mut depth) = (vec![0u16; n], vec![f32::INFINITY; n]);
+    let mut all = objects[0].0.clone();
+    for (k, (s, id)) in objects.iter().enumerate() {
+        if k > 0 {
+            all.append(s);
+        }
+        let out = render::<f32, _>(*s, &cam, &RenderSettings::default()).unwrap();
+        let d = out.expected_depth();
+        for p in 0..n {
+            if out.alpha[p] > 0.5 && d[p] < depth[p] {
+                (ids[p], depth[p]) = (*id, d[p]);
+            }
+        }
+    }
+    let out = render::<f32, _>(&all, &cam, &RenderSettings::default()).unwrap();
+    let rgb = out
+        .rgb
+        .iter()
+        .map(|&c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)
+        .collect();
+    let k = cam.intrinsics;
+    (
+        InstanceMap::from_vec(k.width, k.height, 1, ids).unwrap(),
+        Rgb8Image::from_vec(k.width, k.height, 3, rgb).unwrap(),
+    )
+}
+
+/// Relocalises the glass (the first `n` surfels of `scene`, t = 0 shape `t0`) in `scene` given
+/// the new image; the rest of `scene` is the block (static). Returns the glass's report.
+fn run(
+    scene: &mut Surfels,
+    t0: &Surfels,
+    n: usize,
+    image: (&InstanceMap, &Rgb8Image),
+    movable: &[u16],
+) -> Relocation {
+    let mut before = t0.clone();
+    let mut objects = vec![Object {
+        id: 1,
+        surfels: (0..n as u32).collect(),
+        new_id: GLASS,
+    }];
+    if scene.len() > n {
+        before.append(&scene.gather(&(n..scene.len()).collect::<Vec<_>>()));
+        objects.push(Object {
+            id: 2,
+            surfels: (n as u32..scene.len() as u32).collect(),
+            new_id: BLOCK,
+        });
+    }
+    let img = NewImage {
+        camera: &camera(),
+        instance: image.0,
+        rgb: Some(image.1),
+    };
+    let r = relocalise(
+        scene,
+        &before,
+        &[],
+        &objects,
+        movable,
+        &img,
+        0.0,
+        &RenderSettings::default(),
+        &Relocalise::default(),
+    )
+    .unwrap();
+    r.into_iter().find(|r| r.object_id == 1).unwrap()
+}
+
+/// Symmetric chamfer distance between the surfel centres (m): the glass is symmetric about its
+/// axis, so which surfel went where does not matter, only the surface.
+fn distance(a: &Surfels, b: &Surfels) -> f32 {
+    let one_way = |a: &Surfels, b: &Surfels| {
+        a.means
+            .iter()
+            .map(|p| {
+                b.means
+                    .iter()
+                    .map(|q| (glam::Vec3::from_array(*p) - glam::Vec3::from_array(*q)).length())
+                    .fold(f32::INFINITY, f32::min)
+            })
+            .sum::<f32>()
+            / a.len() as f32
+    };
+    0.5 * (one_way(a, b) + one_way(b, a))
+}
+
+/// The glass's tilt from the vertical (degrees), from its surfels (the mean of the top ring minus
+/// the mean of the bottom ring), given the t = 0 heights.
+fn tilt_deg(s: &Surfels, t0: &Surfels) -> f64 {
+    let v = |a: [f32; 3]| DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64);
+    let ring = |z0: f32, z1: f32| {
+        let idx: Vec<usize> = (0..t0.len())
+            .filter(|&i| (z0..z1).contains(&t0.means[i][2]))
+            .collect();
+        idx.iter().map(|&i| v(s.means[i])).sum::<DVec3>() / idx.len() as f64
+    };
+    let (top, bottom) = (ring(0.9 * HEIGHT, HEIGHT), ring(0.0, 0.1 * HEIGHT));
+    (top - bottom).normalize().z.acos().to_degrees()
+}
+
+#[test]
+fn a_glass_leaning_on_a_block_is_recovered_though_its_simulated_pose_is_upright() {
+    let t0 = glass();
+    let shape = Shape::new(&t0, &vec![true; t0.len()]).unwrap();
+    // Truth: tipped towards the block about its base edge (x = 3 cm) until its top rim meets the
+    // block's face at x = 10 cm: sin θ = 0.07 / H.
+    let theta = (0.07 / HEIGHT as f64).asin();
+    let truth = Pose::IDENTITY
+        .turned(
+            shape.centroid,
+            DQuat::from_rotation_y(theta),
+            DVec3::new(RADIUS as f64, 0.0, 0.0),
+        )
+        .place(&t0, shape.centroid);
+    let (inst, rgb) = image_of(&[(&truth, GLASS), (&wall(), BLOCK)]);
+    // Simulated: upright where it stood.
+    let mut scene = t0.clone();
+    scene.append(&wall());
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let got = scene.gather(&(0..t0.len()).collect::<Vec<_>>());
+    assert!(r.moved && r.reason == Reason::Movable, "{r:?}");
+    let (before, after) = (r.score_before.unwrap(), r.score_after.unwrap());
+    assert!(
+        after.total > before.total && after.iou > before.iou,
+        "{r:?}"
+    );
+    assert!(r.candidates > 100 && !r.finalists.is_empty(), "{r:?}");
+    let err = distance(&got, &truth);
+    assert!(err < 0.01, "surfels {err} m from the truth");
+    let (want, tilt) = (theta.to_degrees(), tilt_deg(&got, &t0));
+    assert!((tilt - want).abs() < 6.0, "tilt {tilt}° (truth {want}°)");
+    assert!(
+        after.rest.on_object && after.implausibility == 0.0,
+        "{after:?}"
+    );
+}
+
+#[test]
+fn a_simulated_pose_inside_another_object_is_replaced_by_one_beside_it() {
+    let t0 = glass();
+    // Truth: upright, just left of the block; simulated: 2 cm into it.
+    let truth = cylinder(0.065, 0.0, 0);
+    let (inst, rgb) = image_of(&[(&truth, GLASS), (&wall(), BLOCK)]);
+    let shape = Shape::new(&t0, &vec![true; t0.len()]).unwrap();
+    let mut scene = Pose::IDENTITY
+        .shifted(DVec3::new(0.085, 0.0, 0.0))
+        .place(&t0, shape.centroid);
+    scene.append(&wall());
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    assert!(r.moved, "{r:?}");
+    let before = r.score_before.unwrap();
+    assert!(before.rest.clearance_m < -0.05, "{before:?}");
+    for m in &scene.means[..t0.len()] {
+        let inside = m[0] > 0.10 + 0.003 && m[1].abs() < 0.05 - 0.003 && m[2] < 0.12 - 0.003;
+        assert!(!inside, "surfel at {m:?} is inside the block");
+    }
+    let got = scene.gather(&(0..t0.len()).collect::<Vec<_>>());
+    assert!(distance(&got, &truth) < 0.008, "{}", distance(&got, &truth));
+}
+
+#[test]
+fn a_movable_glass_already_at_rest_on_its_mask_keeps_its_pose() {
+    let t0 = cylinder(0.02, 0.01, 0);
+    let (inst, rgb) = image_of(&[(&t0, GLASS)]);
+    let mut scene = t0.clone();
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    assert_eq!(r.reason, Reason::Movable);
+    assert!(
+        distance(&scene, &t0) < 0.004,
+        "moved by {}",
+        distance(&scene, &t0)
+    );
+    assert!(tilt_deg(&scene, &t0) < 2.0);
+}
+
+#[test]
+fn a_static_glass_that_tipped_over_and_rolled_is_moved_onto_its_mask() {
+    // Truth: tipped over towards 40° and 9 cm away; the simulation could not move it (not movable)
+    // but its silhouette misses its mask.
+    let t0 = glass();
+    let shape = Shape::new(&t0, &vec![true; t0.len()]).unwrap();
+    let a = 40f64.to_radians();
+    let truth = Pose {
+        rot: DQuat::from_axis_angle(
+            DVec3::new(a.cos(), a.sin(), 0.0),
+            std::f64::consts::FRAC_PI_2,
+        ),
+        t: DVec3::new(0.07, 0.05, RADIUS as f64 - HEIGHT as f64 / 2.0),
+    }
+    .place(&t0, shape.centroid);
+    let (inst, rgb) = image_of(&[(&truth, GLASS)]);
+    let mut scene = t0.clone();
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[]);
+    assert!(
+        r.moved && r.reason == Reason::SilhouetteMiss && r.iou_before < 0.1,
+        "{r:?}"
+    );
+    assert!(r.iou_after > 0.8, "{r:?}");
+    let err = distance(&scene, &truth);
+    assert!(err < 0.01, "surfels {err} m from the truth");
+}
+
+#[test]
+fn a_static_glass_on_its_mask_is_left_where_it_is_without_a_search() {
+    let t0 = cylinder(0.02, 0.01, 0);
+    let (inst, rgb) = image_of(&[(&t0, GLASS)]);
+    let mut scene = t0.clone();
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[]);
+    assert!(
+        r.reason == Reason::Static && !r.moved && r.iou_before > 0.9 && r.evaluations == 0,
+        "{r:?}"
+    );
+    assert_eq!(scene.means, t0.means);
+}
