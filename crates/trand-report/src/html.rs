@@ -141,10 +141,8 @@ pub fn kinds_html(tables: &[KindTable]) -> String {
     for t in tables.iter().filter(|t| !t.rows.is_empty()) {
         let _ = write!(
             s,
-            "<h3>{} {} ({} sequences)</h3>\n{}",
-            t.method,
-            t.state.as_str(),
-            t.sequences,
+            "<h3>{}</h3>\n{}",
+            escape(&kinds::kind_table_title(t)),
             kind_rows_html(&t.rows)
         );
     }

@@ -92,18 +92,22 @@ pub fn pool_tables(tables: &[ObjectTable]) -> Vec<KindRow> {
     )
 }
 
+/// The heading of a per-kind table: `trand t0 (1 sequence)`, `trand t1 (3 sequences)`.
+pub fn kind_table_title(t: &KindTable) -> String {
+    let plural = if t.sequences == 1 { "" } else { "s" };
+    format!(
+        "{} {} ({} sequence{plural})",
+        t.method,
+        t.state.as_str(),
+        t.sequences
+    )
+}
+
 /// The per-kind section of `tables.md`.
 pub fn kinds_markdown(tables: &[KindTable]) -> String {
     let mut s = String::new();
     for t in tables.iter().filter(|t| !t.rows.is_empty()) {
-        let _ = writeln!(
-            s,
-            "**{} {}** ({} sequences)\n\n{}",
-            t.method,
-            t.state.as_str(),
-            t.sequences,
-            kind_table(&t.rows)
-        );
+        let _ = writeln!(s, "**{}**\n\n{}", kind_table_title(t), kind_table(&t.rows));
     }
     s
 }
@@ -243,6 +247,8 @@ mod tests {
         let t1 = &t.per_kind[1];
         assert_eq!((t1.state, t1.sequences, t1.rows.len()), (State::T1, 1, 1));
         assert!((t1.rows[0].metrics.mae_m - 0.1).abs() < 1e-12);
+        assert_eq!(kind_table_title(t0), "trand t0 (2 sequences)");
+        assert_eq!(kind_table_title(t1), "trand t1 (1 sequence)");
 
         // Per object: one table per sequence and state that lists objects.
         let listed: Vec<(&str, State, usize)> = t
