@@ -312,8 +312,23 @@ fn every_image_and_link_of_the_report_exists() {
     let n = check_links(&out);
     let page = std::fs::read_to_string(out.join("seq/seq_a.html")).unwrap();
     // 4 training thumbnails, and per state 2 views × (5 written images: GT and rendered depth,
-    // absolute and signed error, GT objects; + the run's object map).
+    // |error|, signed error, GT objects; + the run's object map).
     assert_eq!(page.matches("<img").count(), 4 + 2 * 2 * 6, "{page}");
+    assert_eq!(
+        page.matches("_signed_error.png\" alt=").count(),
+        2 * 2,
+        "{page}"
+    );
+    assert!(page.contains("saturating at ±0.05: blue too near, red too far"));
+    // Object 1 (20 pixels per view, two views) at t0, and the kinds of the sequence.
+    assert!(
+        page.contains("<tr><td>1</td><td>bowl (upright)</td><td>40</td><td>0.0050</td>"),
+        "{page}"
+    );
+    assert!(
+        page.contains("<tr><td>mug (inverted)</td><td>1</td><td>1</td><td>8</td>"),
+        "{page}"
+    );
     assert!(n >= 2 * 24 + 4, "{n}");
     for plot in [
         "|error| of trand at t0",
@@ -323,13 +338,69 @@ fn every_image_and_link_of_the_report_exists() {
     ] {
         assert!(page.contains(plot), "{plot}");
     }
-    assert!(page.contains("t0, per object"), "per-object table");
+    assert!(
+        page.contains("<h2>Metrics per object and per kind</h2>"),
+        "per-object and per-kind tables"
+    );
     let index = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(
         index.contains("<td>trand t0</td><td>0.0050</td>"),
         "{index}"
     );
     assert!(index.contains("per object kind"), "per-kind section");
+    assert!(index.contains("<h3>trand t1 (2 sequences)</h3>"), "{index}");
+}
+
+#[test]
+fn per_kind_tables_pool_the_objects_of_every_sequence() {
+    let f = Fixture::new("bench-kinds");
+    let out = f.path().join("report");
+    let o = f.trand(
+        &[
+            "bench",
+            "--data",
+            s(&f.seq("seq_a")),
+            s(&f.seq("seq_b")),
+            "--out",
+            s(&out),
+            "--methods",
+            "trand",
+        ],
+        "",
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let t = std::fs::read_to_string(out.join("tables.md")).unwrap();
+    // Each sequence: the bowl has 20 pixels and the mug 4 in each of two test views; frame 0 is
+    // 1 cm off at t0 and 3 cm off at t1, frame 1 exact; the mug is removed at t1.
+    for row in [
+        "| bowl (upright) | 2 | 2 | 80 | 0.0050 | 100.00% | 100.00% |",
+        "| mug (inverted) | 2 | 2 | 16 | 0.0050 | 100.00% | 100.00% |",
+        "| bowl (upright) | 2 | 2 | 80 | 0.0150 | 50.00% | 100.00% |",
+        "| 1 | bowl (upright) | 40 | 0.0050 |",
+    ] {
+        assert!(t.contains(row), "{row}\n{t}");
+    }
+    let kind_rows = |label: &str| t.lines().filter(|l| l.starts_with(label)).count();
+    assert_eq!(kind_rows("| mug (inverted) |"), 1, "removed at t1: {t}");
+    assert_eq!(kind_rows("| bowl (upright) |"), 2, "{t}");
+    assert!(t.contains("**trand t1 (2 sequences)**"), "{t}");
+    assert!(
+        text(&o).contains("| bowl (upright) | 2 | 2 | 80 | 0.0150 | 50.00% | 100.00% |"),
+        "the bench prints the per-kind tables: {}",
+        text(&o)
+    );
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("tables.json")).unwrap()).unwrap();
+    let kinds = j["per_kind"].as_array().unwrap();
+    assert_eq!(kinds.len(), 2, "trand t0 and t1");
+    assert_eq!(kinds[1]["state"], "t1");
+    assert_eq!(kinds[1]["rows"][0]["label"], "bowl (upright)");
+    assert_eq!(kinds[1]["rows"][0]["sequences"], 2);
+    assert_eq!(
+        j["per_object"].as_array().unwrap().len(),
+        4,
+        "2 sequences × t0, t1"
+    );
 }
 
 #[test]

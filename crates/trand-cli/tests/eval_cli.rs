@@ -40,7 +40,23 @@ fn eval_of_gt_copy_prints_perfect_row_and_writes_metrics_json() {
         stdout.contains("| seq_101 t0 | 0.0000 | 0.0000 | 100.00% | 100.00% |"),
         "{stdout}"
     );
-    assert!(run.path().join("metrics.json").is_file());
+    // Per object, with the kinds of seq_101's sequence.json; the objects partition the pooled pixels.
+    assert!(
+        stdout.contains("| 1 | tumbler (inverted) |")
+            && stdout.contains("| 4 | wine_glass (upright) |"),
+        "{stdout}"
+    );
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.path().join("metrics.json")).unwrap())
+            .unwrap();
+    let objects = j["per_object"].as_array().unwrap();
+    assert_eq!(objects.len(), 4);
+    let sum: u64 = objects
+        .iter()
+        .map(|o| o["metrics"]["pixels"].as_u64().unwrap())
+        .sum();
+    assert_eq!(Some(sum), j["pixels"].as_u64());
+    assert!(objects.iter().all(|o| o["metrics"]["mae_m"] == 0.0));
     // A missing prediction fails with the file named.
     std::fs::remove_file(trand_eval::prediction_path(
         run.path(),

@@ -3,7 +3,8 @@
 //! * [`metrics`]: MAE, RMSE and threshold accuracies of predicted depth on GT object pixels, pooled per
 //!   sequence ([`evaluate`]), averaged over sequences ([`mean_over_sequences`]), as a Markdown [`table`].
 //! * [`run`]: the `trand eval` contract (a run folder of `.npy` depths → `metrics.json`).
-//! * [`objects`]: the same metrics per GT object and pooled per object kind (`bowl (upright)`, …).
+//! * [`objects`]: the same metrics per GT object and pooled per object kind (`bowl (upright)`, …),
+//!   with [`kind_label`], the one rule for that label.
 //! * [`matching`]: mask [`iou`] and rectangular [`hungarian`] assignment, for matching objects across
 //!   the scene change.
 
@@ -14,12 +15,12 @@ pub mod run;
 
 pub use matching::{hungarian, iou};
 pub use metrics::{
-    Counts, EvalError, Metrics, PIXEL_SET_NOTE, THRESHOLDS_M, ViewCounts, evaluate,
-    mean_over_sequences, table,
+    Counts, EvalError, Metrics, PAPER_COLUMNS, PIXEL_SET_NOTE, THRESHOLDS_M, ViewCounts, evaluate,
+    mean_over_sequences, paper_cells, table,
 };
 pub use objects::{
-    LabelRow, ObjectInfo, PerObject, kind_label, label_table, object_table, per_object,
-    pool_by_label, read_object_info,
+    KindRow, ObjectInfo, PerObject, UNKNOWN_KIND, kind_label, kind_table, object_table, per_object,
+    pool_by_kind, read_object_info,
 };
 pub use run::{
     RunEvalError, RunEvaluation, evaluate_run, evaluate_run_detailed, prediction_path, run_state,

@@ -227,17 +227,24 @@ pub fn mean_over_sequences(seqs: &[Metrics]) -> Metrics {
     }
 }
 
-/// A Markdown table with the paper's columns: MAE and RMSE in metres (4 decimals), accuracies in %.
+/// The paper's column headers in Markdown: MAE, RMSE and the accuracy at every threshold.
+pub const PAPER_COLUMNS: &str =
+    "MAE ↓ | RMSE ↓ | <0.5cm ↑ | <1cm ↑ | <2.5cm ↑ | <5cm ↑ | <10cm ↑ | <20cm ↑ |";
+
+/// The Markdown cells under [`PAPER_COLUMNS`]: MAE and RMSE in metres (4 decimals), accuracies in %.
+pub fn paper_cells(m: &Metrics) -> String {
+    let mut s = format!(" {:.4} | {:.4} |", m.mae_m, m.rmse_m);
+    for a in m.acc {
+        s += &format!(" {:.2}% |", 100.0 * a);
+    }
+    s
+}
+
+/// A Markdown table with the paper's columns ([`PAPER_COLUMNS`], [`paper_cells`]).
 pub fn table(rows: &[(&str, &Metrics)]) -> String {
-    let mut s = String::from(
-        "| | MAE ↓ | RMSE ↓ | <0.5cm ↑ | <1cm ↑ | <2.5cm ↑ | <5cm ↑ | <10cm ↑ | <20cm ↑ |\n|---|---|---|---|---|---|---|---|---|\n",
-    );
+    let mut s = format!("| | {PAPER_COLUMNS}\n|---|{}\n", "---|".repeat(8));
     for (name, m) in rows {
-        s += &format!("| {name} | {:.4} | {:.4} |", m.mae_m, m.rmse_m);
-        for a in m.acc {
-            s += &format!(" {:.2}% |", 100.0 * a);
-        }
-        s.push('\n');
+        s += &format!("| {name} |{}\n", paper_cells(m));
     }
     s
 }

@@ -1,14 +1,18 @@
 //! The paper's metrics per ground-truth object and per object kind.
 //!
 //! * **Per object**: the pixel set of [`crate::metrics`] restricted to one object's visible mask (its
-//!   instance id), pooled over the test views of the state. The per-object pixel sets partition the
-//!   pooled one, so the pooled sums are the sums of the per-object sums.
+//!   instance id; BOP `mask_visib/{frame}_{obj}.png` files give object ids), pooled over the test
+//!   views of the state. The per-object pixel sets partition the pooled one, so the pooled sums are
+//!   the sums of the per-object sums.
 //! * **Kind**: where the sequence says what an object is (`sequence.json`, written by Blender's
 //!   exporter and by `trand synth`: `objects[].kind`, and the orientation as `initial_mode` or
 //!   `params_m.initial_mode`), an object is labelled `kind (orientation)`, e.g. `bowl (upright)`: an
 //!   upright bowl and an upturned one are different problems (an opening against a dome).
+//!   [`kind_label`] is the one rule for that label. The orientation is the one the sequence gives
+//!   for t=0, also at t=1.
 //! * **Per kind**: the sums of every object with the same label, pooled (pixel-weighted), over any
-//!   number of sequences ([`pool_by_label`]).
+//!   number of sequences ([`pool_by_kind`]). Objects whose kind the sequence does not name pool under
+//!   [`UNKNOWN_KIND`], never by id (id 3 of one sequence is not id 3 of another).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -16,7 +20,12 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use trand_io::{DepthMap, View};
 
-use crate::metrics::{Counts, EvalError, Metrics, add_pixel, check_view};
+use crate::metrics::{
+    Counts, EvalError, Metrics, PAPER_COLUMNS, add_pixel, check_view, paper_cells,
+};
+
+/// The label of an object whose kind the sequence does not name.
+pub const UNKNOWN_KIND: &str = "unknown";
 
 /// What the sequence says about one object.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -27,18 +36,20 @@ pub struct ObjectInfo {
 }
 
 impl ObjectInfo {
-    /// `kind (orientation)`, `kind`, or `object ID` when the sequence does not say.
+    /// [`kind_label`] of this object.
     pub fn label(&self) -> String {
-        kind_label(self.id, self.kind.as_deref(), self.orientation.as_deref())
+        kind_label(self.kind.as_deref(), self.orientation.as_deref())
     }
 }
 
-/// The label rule of [`ObjectInfo::label`].
-pub fn kind_label(id: u16, kind: Option<&str>, orientation: Option<&str>) -> String {
+/// The label of an object kind, used for every per-object and per-kind row: `kind (orientation)`
+/// (`bowl (upright)`), `kind` when the orientation is not given, [`UNKNOWN_KIND`] when the kind is
+/// not (an orientation alone says too little to pool objects by).
+pub fn kind_label(kind: Option<&str>, orientation: Option<&str>) -> String {
     match (kind, orientation) {
         (Some(k), Some(o)) => format!("{k} ({o})"),
         (Some(k), None) => k.to_string(),
-        _ => format!("object {id}"),
+        (None, _) => UNKNOWN_KIND.to_string(),
     }
 }
 
@@ -116,15 +127,25 @@ pub struct PerObject {
     pub id: u16,
     pub kind: Option<String>,
     pub orientation: Option<String>,
-    /// [`ObjectInfo::label`].
+    /// [`kind_label`] of `kind` and `orientation`, for readers of `metrics.json`.
     pub label: String,
     /// The sums, so that objects can be pooled later (per kind, over sequences).
     pub counts: Counts,
     pub metrics: Metrics,
 }
 
-/// Metrics of every GT object seen in the test views (ascending id). Views are checked and paired as
-/// by [`crate::evaluate`].
+impl PerObject {
+    /// [`kind_label`] of this object (recomputed, so pooling never depends on a stored label).
+    pub fn kind_label(&self) -> String {
+        kind_label(self.kind.as_deref(), self.orientation.as_deref())
+    }
+}
+
+/// Metrics of every GT object seen in the test views (ascending id): for object `i`, the pixels `p`
+/// of every view with instance id `i` and GT depth `g > 0`, `e = g − pred` (`pred = 0` where
+/// uncovered), MAE = Σ|e| / N, RMSE = √(Σe² / N), δ<τ = #{|e| < τ} / N. Views are checked and paired
+/// as by [`crate::evaluate`]; `info` gives kinds and orientations (objects it does not list get
+/// none).
 pub fn per_object(
     pred: &[(String, DepthMap)],
     gt: &[View],
@@ -141,84 +162,107 @@ pub fn per_object(
     }
     Ok(sums
         .into_iter()
-        .map(|(id, counts)| {
-            let known = info
-                .iter()
-                .find(|o| o.id == id)
-                .cloned()
-                .unwrap_or(ObjectInfo {
-                    id,
-                    ..Default::default()
-                });
-            PerObject {
-                id,
-                label: known.label(),
-                kind: known.kind,
-                orientation: known.orientation,
-                metrics: Metrics::from_counts(&counts, Vec::new()),
-                counts,
-            }
-        })
+        .map(|(id, counts)| object_row(id, counts, info))
         .collect())
 }
 
-/// Objects of one label pooled: pixel-weighted metrics over every object with that label.
+fn object_row(id: u16, counts: Counts, info: &[ObjectInfo]) -> PerObject {
+    let known = info.iter().find(|o| o.id == id);
+    let text = |f: fn(&ObjectInfo) -> &Option<String>| known.and_then(|o| f(o).clone());
+    let (kind, orientation) = (text(|o| &o.kind), text(|o| &o.orientation));
+    PerObject {
+        id,
+        label: kind_label(kind.as_deref(), orientation.as_deref()),
+        kind,
+        orientation,
+        metrics: Metrics::from_counts(&counts, Vec::new()),
+        counts,
+    }
+}
+
+/// The objects of one kind label pooled: Σ over the objects of their sums, then the metrics of
+/// [`per_object`] on the pooled sums (pixel-weighted, not a mean of the objects' figures).
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct LabelRow {
+pub struct KindRow {
+    /// [`kind_label`].
     pub label: String,
+    pub kind: Option<String>,
+    pub orientation: Option<String>,
     /// Objects pooled.
     pub objects: usize,
+    /// Distinct sequences those objects come from.
+    pub sequences: usize,
     pub metrics: Metrics,
 }
 
-/// Pools `objects` (from any number of sequences) by label, labels in ascending order.
-pub fn pool_by_label<'a>(objects: impl IntoIterator<Item = &'a PerObject>) -> Vec<LabelRow> {
-    let mut by: BTreeMap<&str, (usize, Counts)> = BTreeMap::new();
-    for o in objects {
-        let e = by.entry(o.label.as_str()).or_default();
-        e.0 += 1;
-        e.1.add(&o.counts);
+/// Pools `(sequence, object)` pairs from any number of sequences by [`kind_label`]: named kinds in
+/// ascending label order, then [`UNKNOWN_KIND`].
+pub fn pool_by_kind<'a>(
+    objects: impl IntoIterator<Item = (&'a str, &'a PerObject)>,
+) -> Vec<KindRow> {
+    struct Pool<'a> {
+        first: &'a PerObject,
+        objects: usize,
+        sequences: std::collections::BTreeSet<&'a str>,
+        counts: Counts,
+    }
+    let mut by: BTreeMap<(bool, String), Pool<'a>> = BTreeMap::new();
+    for (seq, o) in objects {
+        let e = by
+            .entry((o.kind.is_none(), o.kind_label()))
+            .or_insert(Pool {
+                first: o,
+                objects: 0,
+                sequences: Default::default(),
+                counts: Counts::default(),
+            });
+        e.objects += 1;
+        e.sequences.insert(seq);
+        e.counts.add(&o.counts);
     }
     by.into_iter()
-        .map(|(label, (objects, c))| LabelRow {
-            label: label.to_string(),
-            objects,
-            metrics: Metrics::from_counts(&c, Vec::new()),
+        .map(|((_, label), p)| KindRow {
+            label,
+            kind: p.first.kind.clone(),
+            orientation: p.first.orientation.clone(),
+            objects: p.objects,
+            sequences: p.sequences.len(),
+            metrics: Metrics::from_counts(&p.counts, Vec::new()),
         })
         .collect()
 }
 
-/// A Markdown table of objects: id, label, pixels, MAE, and the share within 2.5 cm and 5 cm.
+/// A Markdown table of objects: id, kind label, pixels and the paper's columns.
 pub fn object_table(rows: &[PerObject]) -> String {
-    let mut s = String::from(
-        "| object | kind | pixels | MAE ↓ | <2.5cm ↑ | <5cm ↑ |\n|---|---|---|---|---|---|\n",
+    let mut s = format!(
+        "| object | kind | pixels | {PAPER_COLUMNS}\n|---|---|---|{}\n",
+        "---|".repeat(8)
     );
     for r in rows {
-        let m = &r.metrics;
         s += &format!(
-            "| {} | {} | {} | {:.4} | {:.2}% | {:.2}% |\n",
+            "| {} | {} | {} |{}\n",
             r.id,
-            r.label,
-            m.pixels,
-            m.mae_m,
-            100.0 * m.acc[2],
-            100.0 * m.acc[3]
+            r.kind_label(),
+            r.metrics.pixels,
+            paper_cells(&r.metrics)
         );
     }
     s
 }
 
-/// A Markdown table of pooled labels: label, objects, pixels, MAE, and the shares within 2.5 and 5 cm.
-pub fn label_table(rows: &[LabelRow]) -> String {
+/// A Markdown table of kinds: label, objects, sequences, pixels, MAE, and the shares within 2.5 and
+/// 5 cm.
+pub fn kind_table(rows: &[KindRow]) -> String {
     let mut s = String::from(
-        "| kind | objects | pixels | MAE ↓ | <2.5cm ↑ | <5cm ↑ |\n|---|---|---|---|---|---|\n",
+        "| kind | objects | sequences | pixels | MAE ↓ | <2.5cm ↑ | <5cm ↑ |\n|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let m = &r.metrics;
         s += &format!(
-            "| {} | {} | {} | {:.4} | {:.2}% | {:.2}% |\n",
+            "| {} | {} | {} | {} | {:.4} | {:.2}% | {:.2}% |\n",
             r.label,
             r.objects,
+            r.sequences,
             m.pixels,
             m.mae_m,
             100.0 * m.acc[2],
@@ -236,7 +280,7 @@ mod tests {
 
     fn view(name: &str, depth: Vec<f32>, inst: Vec<u16>) -> View {
         let cam = Camera::look_at(
-            Intrinsics::centered(10.0, 2, 2),
+            Intrinsics::centered(10.0, 3, 2),
             glam::DVec3::Z,
             glam::DVec3::ZERO,
             glam::DVec3::Y,
@@ -246,55 +290,104 @@ mod tests {
             frame: 0,
             camera: cam,
             rgb: None,
-            instance: Some(Image::from_vec(2, 2, 1, inst).unwrap()),
-            depth: Some(Image::from_vec(2, 2, 1, depth).unwrap()),
+            instance: Some(Image::from_vec(3, 2, 1, inst).unwrap()),
+            depth: Some(Image::from_vec(3, 2, 1, depth).unwrap()),
         }
     }
 
     fn pred(name: &str, d: Vec<f32>) -> (String, DepthMap) {
-        (name.into(), Image::from_vec(2, 2, 1, d).unwrap())
+        (name.into(), Image::from_vec(3, 2, 1, d).unwrap())
     }
 
-    /// Two views of objects 3 and 7, a background pixel and an object pixel without GT depth.
-    /// |e| of object 3: 0.01, 0.03 (view a), 0 (b); of object 7: 0.06 (a, uncovered), 0.15, 0.15 (b).
+    /// Two 3×2 views of objects 3 and 7, with a background pixel and an object pixel without GT
+    /// depth in each. Every error is a power of two, so every figure below is exact.
+    /// Object 3: |e| = 1/256, 1/32 (view a), 0, 1/128 (view b).
+    /// Object 7: |e| = 1/8 (a, uncovered: pred 0), 0 (a), 1/16, 1 (b, uncovered: pred NaN).
     fn case() -> (Vec<(String, DepthMap)>, Vec<View>) {
         let gt = vec![
-            view("a", vec![1.0, 1.0, 0.06, 2.0], vec![3, 3, 7, 0]),
-            view("b", vec![1.5, 0.0, 1.2, 1.2], vec![3, 7, 7, 7]),
+            view(
+                "a",
+                vec![1.0, 1.0, 0.125, 2.0, 1.0, 0.0],
+                vec![3, 3, 7, 0, 7, 3],
+            ),
+            view(
+                "b",
+                vec![1.5, 0.0, 1.0, 1.0, 1.0, 1.0],
+                vec![3, 7, 7, 7, 3, 0],
+            ),
         ];
         let pr = vec![
-            pred("a", vec![1.01, 0.97, 0.0, 5.0]),
-            pred("b", vec![1.5, 9.0, 1.05, 1.35]),
+            pred(
+                "a",
+                vec![1.0 + 1.0 / 256.0, 1.0 - 1.0 / 32.0, 0.0, 5.0, 1.0, 1.0],
+            ),
+            pred(
+                "b",
+                vec![1.5, 9.0, 1.0 + 1.0 / 16.0, f32::NAN, 1.0 + 1.0 / 128.0, 1.0],
+            ),
         ];
         (pr, gt)
+    }
+
+    fn bowl_upright(id: u16) -> ObjectInfo {
+        ObjectInfo {
+            id,
+            kind: Some("bowl".into()),
+            orientation: Some("upright".into()),
+        }
     }
 
     #[test]
     fn per_object_metrics_match_a_hand_computed_case() {
         let (pr, gt) = case();
-        let info = vec![ObjectInfo {
-            id: 3,
-            kind: Some("bowl".into()),
-            orientation: Some("upright".into()),
-        }];
+        let info = vec![bowl_upright(3), bowl_upright(11)];
         let rows = per_object(&pr, &gt, &info).unwrap();
-        assert_eq!(rows.iter().map(|r| r.id).collect::<Vec<_>>(), vec![3, 7]);
-        let (o3, o7) = (&rows[0].metrics, &rows[1].metrics);
-        // Object 3: |e| = 0.01, 0.03, 0.0.
-        assert_eq!(o3.pixels, 3);
-        assert!((o3.mae_m - 0.04 / 3.0).abs() < 1e-6, "{}", o3.mae_m);
-        assert!((o3.rmse_m - (0.001f64 / 3.0).sqrt()).abs() < 1e-6);
-        assert!((o3.acc[2] - 2.0 / 3.0).abs() < 1e-12);
-        assert!((o3.acc[3] - 1.0).abs() < 1e-12);
-        assert_eq!(rows[0].label, "bowl (upright)");
-        // Object 7: 0.06 uncovered (|e| = GT), 0.15, 0.15 (no GT depth at b[1]: not counted).
-        assert_eq!(o7.pixels, 3);
-        assert_eq!(o7.uncovered, 1);
-        assert!((o7.mae_m - 0.12).abs() < 1e-6, "{}", o7.mae_m);
-        assert!((o7.acc[3] - 0.0).abs() < 1e-12);
-        assert!((o7.acc[4] - 1.0 / 3.0).abs() < 1e-12, "{}", o7.acc[4]);
-        assert!((o7.acc[5] - 1.0).abs() < 1e-12);
-        assert_eq!(rows[1].label, "object 7");
+        assert_eq!(
+            rows.iter().map(|r| r.id).collect::<Vec<_>>(),
+            vec![3, 7],
+            "objects seen in the views only, ascending"
+        );
+        let (o3, o7) = (&rows[0], &rows[1]);
+        assert_eq!(
+            (
+                o3.label.as_str(),
+                o3.kind.as_deref(),
+                o3.orientation.as_deref()
+            ),
+            ("bowl (upright)", Some("bowl"), Some("upright"))
+        );
+        assert_eq!(
+            (o7.label.as_str(), o7.kind.as_deref()),
+            (UNKNOWN_KIND, None)
+        );
+        // Object 3: Σ|e| = 11/256, Σe² = 69/65536.
+        let c3 = Counts {
+            pixels: 4,
+            uncovered: 0,
+            abs_sum: 11.0 / 256.0,
+            sq_sum: 69.0 / 65536.0,
+            within: [2, 3, 3, 4, 4, 4],
+        };
+        assert_eq!(o3.counts, c3);
+        let m3 = &o3.metrics;
+        assert_eq!((m3.pixels, m3.uncovered), (4, 0));
+        assert_eq!(m3.mae_m, 11.0 / 1024.0);
+        assert_eq!(m3.rmse_m, 69f64.sqrt() / 512.0);
+        assert_eq!(m3.acc, [0.5, 0.75, 0.75, 1.0, 1.0, 1.0]);
+        // Object 7: Σ|e| = 19/16, Σe² = 261/256; the uncovered pixels cost their GT depth.
+        let c7 = Counts {
+            pixels: 4,
+            uncovered: 2,
+            abs_sum: 19.0 / 16.0,
+            sq_sum: 261.0 / 256.0,
+            within: [1, 1, 1, 1, 2, 3],
+        };
+        assert_eq!(o7.counts, c7);
+        let m7 = &o7.metrics;
+        assert_eq!((m7.pixels, m7.uncovered), (4, 2));
+        assert_eq!(m7.mae_m, 19.0 / 64.0);
+        assert_eq!(m7.rmse_m, 261f64.sqrt() / 32.0);
+        assert_eq!(m7.acc, [0.25, 0.25, 0.25, 0.25, 0.5, 0.75]);
     }
 
     #[test]
@@ -302,50 +395,107 @@ mod tests {
         let (pr, gt) = case();
         let pooled = crate::evaluate(&pr, &gt).unwrap();
         let rows = per_object(&pr, &gt, &[]).unwrap();
-        let all = pool_by_label(&rows);
         let mut sum = Counts::default();
         for r in &rows {
             sum.add(&r.counts);
         }
         let m = Metrics::from_counts(&sum, Vec::new());
-        assert_eq!(m.pixels, pooled.pixels);
-        assert!((m.mae_m - pooled.mae_m).abs() < 1e-12);
-        assert_eq!(all.len(), 2, "two labels: object 3, object 7");
-    }
-
-    #[test]
-    fn pooling_by_label_weights_objects_by_pixels_across_sequences() {
-        let (pr, gt) = case();
-        let info = vec![
-            ObjectInfo {
-                id: 3,
-                kind: Some("mug".into()),
-                orientation: Some("upright".into()),
-            },
-            ObjectInfo {
-                id: 7,
-                kind: Some("mug".into()),
-                orientation: Some("upright".into()),
-            },
-        ];
-        let mut rows = per_object(&pr, &gt, &info).unwrap();
-        rows.extend(per_object(&pr, &gt, &info).unwrap());
-        let pooled = pool_by_label(&rows);
-        assert_eq!(pooled.len(), 1);
-        assert_eq!(pooled[0].label, "mug (upright)");
-        assert_eq!(pooled[0].objects, 4);
-        assert_eq!(pooled[0].metrics.pixels, 12);
-        assert!((pooled[0].metrics.mae_m - 0.8 / 12.0).abs() < 1e-6);
-    }
-
-    #[test]
-    fn labels_name_kind_and_orientation_where_known() {
+        assert_eq!((m.pixels, m.uncovered), (pooled.pixels, pooled.uncovered));
         assert_eq!(
-            kind_label(2, Some("bowl"), Some("inverted")),
+            (m.mae_m, m.rmse_m, m.acc),
+            (pooled.mae_m, pooled.rmse_m, pooled.acc)
+        );
+    }
+
+    #[test]
+    fn objects_of_one_kind_pool_their_pixels_across_sequences() {
+        let (pr, gt) = case();
+        let mug = |id| ObjectInfo {
+            id,
+            kind: Some("mug".into()),
+            orientation: Some("upright".into()),
+        };
+        // Sequence s: 3 is a mug, 7 unnamed; sequence t: 3 an upright bowl, 7 a mug.
+        let s = per_object(&pr, &gt, &[mug(3)]).unwrap();
+        let t = per_object(&pr, &gt, &[bowl_upright(3), mug(7)]).unwrap();
+        let rows = pool_by_kind(s.iter().map(|o| ("s", o)).chain(t.iter().map(|o| ("t", o))));
+        let labels: Vec<&str> = rows.iter().map(|r| r.label.as_str()).collect();
+        assert_eq!(labels, ["bowl (upright)", "mug (upright)", UNKNOWN_KIND]);
+        let mugs = &rows[1];
+        assert_eq!((mugs.objects, mugs.sequences), (2, 2));
+        // Object 3 (Σ|e| = 11/256) and object 7 (19/16) over 8 pixels, not the mean of their MAEs.
+        assert_eq!(mugs.metrics.pixels, 8);
+        assert_eq!(mugs.metrics.uncovered, 2);
+        assert_eq!(mugs.metrics.mae_m, (11.0 / 256.0 + 19.0 / 16.0) / 8.0);
+        assert_eq!(mugs.metrics.acc[2], 4.0 / 8.0);
+        assert_eq!((rows[0].objects, rows[0].sequences), (1, 1));
+        assert_eq!(rows[0].metrics.mae_m, 11.0 / 1024.0);
+        assert_eq!(
+            (rows[2].objects, rows[2].sequences, rows[2].kind.as_deref()),
+            (1, 1, None)
+        );
+        // The same object twice from one sequence counts one sequence.
+        let twice = pool_by_kind([("s", &s[0]), ("s", &s[0])]);
+        assert_eq!(
+            (
+                twice[0].objects,
+                twice[0].sequences,
+                twice[0].metrics.pixels
+            ),
+            (2, 1, 8)
+        );
+    }
+
+    #[test]
+    fn kind_label_names_kind_and_orientation_and_never_an_id() {
+        assert_eq!(
+            kind_label(Some("bowl"), Some("inverted")),
             "bowl (inverted)"
         );
-        assert_eq!(kind_label(2, Some("bowl"), None), "bowl");
-        assert_eq!(kind_label(2, None, Some("upright")), "object 2");
+        assert_eq!(kind_label(Some("bowl"), Some("upright")), "bowl (upright)");
+        assert_eq!(kind_label(Some("bowl"), None), "bowl");
+        assert_eq!(kind_label(None, Some("upright")), UNKNOWN_KIND);
+        assert_eq!(kind_label(None, None), UNKNOWN_KIND);
+        assert_eq!(bowl_upright(4).label(), "bowl (upright)");
+    }
+
+    #[test]
+    fn pooling_uses_the_label_rule_not_a_stored_label() {
+        let (pr, gt) = case();
+        let mut rows = per_object(&pr, &gt, &[bowl_upright(3)]).unwrap();
+        rows[0].label = "object 3".into();
+        rows[1].label = "object 7".into();
+        let pooled = pool_by_kind(rows.iter().map(|o| ("s", o)));
+        let labels: Vec<&str> = pooled.iter().map(|r| r.label.as_str()).collect();
+        assert_eq!(labels, ["bowl (upright)", UNKNOWN_KIND]);
+    }
+
+    #[test]
+    fn tables_show_every_object_and_kind_row() {
+        let (pr, gt) = case();
+        let rows = per_object(&pr, &gt, &[bowl_upright(3)]).unwrap();
+        let t = object_table(&rows);
+        let lines: Vec<&str> = t.lines().collect();
+        assert_eq!(
+            lines[0],
+            "| object | kind | pixels | MAE ↓ | RMSE ↓ | <0.5cm ↑ | <1cm ↑ | <2.5cm ↑ | <5cm ↑ | <10cm ↑ | <20cm ↑ |"
+        );
+        assert_eq!(lines[1].matches("---").count(), 11);
+        assert_eq!(
+            lines[2],
+            "| 3 | bowl (upright) | 4 | 0.0107 | 0.0162 | 50.00% | 75.00% | 75.00% | 100.00% | 100.00% | 100.00% |"
+        );
+        assert!(
+            lines[3].starts_with("| 7 | unknown | 4 | 0.2969 | 0.5049 | 25.00% |"),
+            "{t}"
+        );
+        let k = kind_table(&pool_by_kind(rows.iter().map(|o| ("s", o))));
+        let lines: Vec<&str> = k.lines().collect();
+        assert_eq!(lines.len(), 4, "{k}");
+        assert_eq!(
+            lines[2],
+            "| bowl (upright) | 1 | 1 | 4 | 0.0107 | 75.00% | 100.00% |"
+        );
     }
 
     #[test]
@@ -363,7 +513,7 @@ mod tests {
         let info = read_object_info(dir.path()).unwrap();
         assert_eq!(info[0].label(), "bowl (upright)");
         assert_eq!(info[1].label(), "sphere (upright)");
-        assert_eq!(info[2].label(), "object 3");
+        assert_eq!(info[2].label(), UNKNOWN_KIND);
         write(r#"{"objects": [{"id": 1}, {"kind": "mug"}]}"#);
         let e = read_object_info(dir.path()).unwrap_err().to_string();
         assert!(

@@ -1,8 +1,10 @@
-//! Colour maps of the report: one perceptual map for every scalar image (depth and error), and a
-//! categorical palette for object ids.
+//! Colour maps of the report: one perceptual map for every unsigned scalar image (depth, |error|), a
+//! diverging map for the signed error, and a categorical palette for object ids.
 //!
-//! Signed errors use a diverging blue–white–red map ([`diverging`]). The scalar map is viridis, given by nine samples at t = 0, 1/8, …, 1 and interpolated linearly in
-//! sRGB; colour bars use the same samples as SVG gradient stops, so images and bars agree.
+//! The scalar map is viridis, given by nine samples at t = 0, 1/8, …, 1; the diverging map is
+//! blue–white–red, given by three samples at t = −1, 0, 1 ([`diverging`]). Both are interpolated
+//! linearly in sRGB, and colour bars use the same samples as SVG gradient stops (which also
+//! interpolate in sRGB), so images and bars agree.
 
 /// Viridis sampled at t = k/8, k = 0..=8 (sRGB).
 pub const VIRIDIS: [[u8; 3]; 9] = [
@@ -90,5 +92,24 @@ mod tests {
         assert_eq!(viridis(f64::NAN), NO_VALUE);
         assert_eq!(hex(VIRIDIS[0]), "#440154");
         assert_eq!(object_colour(11), object_colour(1));
+    }
+
+    #[test]
+    fn diverging_map_is_blue_below_zero_white_at_zero_red_above() {
+        let blue = |c: [u8; 3]| c[2] > c[0] + 60;
+        let red = |c: [u8; 3]| c[0] > c[2] + 60;
+        assert!(blue(diverging(-1.0)) && blue(diverging(-0.5)), "too near");
+        assert!(red(diverging(1.0)) && red(diverging(0.5)), "too far");
+        assert_eq!(diverging(0.0), DIVERGING[1]);
+        assert!(DIVERGING[1].iter().all(|&v| v > 240), "zero is white");
+        // Saturates beyond ±1; NaN is no value.
+        assert_eq!(diverging(-7.0), diverging(-1.0));
+        assert_eq!(diverging(7.0), diverging(1.0));
+        assert_eq!(diverging(f64::NAN), NO_VALUE);
+        // Halfway to −1: the midpoint of white and blue.
+        let mid: [u8; 3] = std::array::from_fn(|c| {
+            ((DIVERGING[0][c] as f64 + DIVERGING[1][c] as f64) / 2.0).round() as u8
+        });
+        assert_eq!(diverging(-0.5), mid);
     }
 }

@@ -5,19 +5,22 @@
 //!
 //! A sequence page: its metrics; the training views; per state, for the first [`SHOWN_VIEWS`] test
 //! views of the primary method (the first of the bench's methods with a result, `trand` when run) the
-//! GT and rendered depth on one colour scale, the absolute error, the GT and predicted object maps;
-//! then the error histogram, accuracy vs threshold for every method, the loss curves and the time per
-//! stage.
+//! GT and rendered depth on one colour scale, the absolute error, the signed error (rendered − GT on
+//! a diverging scale: blue where the rendering is too near, as over a lid that closes an opening;
+//! //! red where it is too far), the GT and predicted object maps; then the error histogram, accuracy vs
+//! threshold for every method, the loss curves and the time per stage. Both error maps saturate at
+//! [`ERROR_MAX_M`], which their colour bars state.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use trand_eval::THRESHOLDS_M;
+use trand_eval::{KindRow, Metrics, PerObject, THRESHOLDS_M};
 use trand_io::{
     DepthMap, Load, LoadOptions, Sequence, Split, State, ViewCount, read_npy_f32,
     read_sequence_with, run_layout,
 };
 
+use crate::kinds::{self, KindTable, ObjectTable};
 use crate::layout::{self, ASSETS_DIR, Manifest, ReportError, SEQ_DIR, SequenceEntry};
 use crate::method::Method;
 use crate::raster;
@@ -30,7 +33,7 @@ pub const SHOWN_VIEWS: usize = 4;
 pub const THUMB_WIDTH: u32 = 160;
 /// Width of depth / error / object images (pixels, at most).
 pub const IMAGE_WIDTH: u32 = 320;
-/// Top of the error colour scale (m); larger errors saturate.
+/// Top of the error colour scales (m): |error| and ±(rendered − GT) saturate beyond it.
 pub const ERROR_MAX_M: f64 = 0.05;
 /// Share of the object depth range added below and above it on the depth colour scale.
 pub const DEPTH_MARGIN: f64 = 0.1;
@@ -59,22 +62,31 @@ fn fmt_opt(v: Option<f64>, d: usize) -> String {
     v.map(|x| format!("{x:.d$}")).unwrap_or_else(|| "–".into())
 }
 
-/// An accuracy table in the paper's columns.
-pub fn accuracy_html(rows: &[AccuracyRow], total: usize) -> String {
-    let mut s = String::from("<table><tr><th></th><th>MAE ↓ (m)</th><th>RMSE ↓ (m)</th>");
+/// The header cells of the paper's columns: MAE, RMSE and the accuracy at every threshold.
+fn paper_header() -> String {
+    let mut s = String::from("<th>MAE ↓ (m)</th><th>RMSE ↓ (m)</th>");
     for t in THRESHOLDS_M {
         let _ = write!(s, "<th>&lt;{}cm ↑</th>", t * 100.0);
     }
-    s += "</tr>\n";
+    s
+}
+
+/// The cells under [`paper_header`].
+fn paper_cells(m: &Metrics) -> String {
+    let mut s = format!("<td>{:.4}</td><td>{:.4}</td>", m.mae_m, m.rmse_m);
+    for a in m.acc {
+        let _ = write!(s, "<td>{:.2}%</td>", 100.0 * a);
+    }
+    s
+}
+
+/// An accuracy table in the paper's columns.
+pub fn accuracy_html(rows: &[AccuracyRow], total: usize) -> String {
+    let mut s = format!("<table><tr><th></th>{}</tr>\n", paper_header());
     for r in rows {
         let _ = write!(s, "<tr><td>{}</td>", escape(&tables::row_label(r, total)));
         match &r.metrics {
-            Some(m) => {
-                let _ = write!(s, "<td>{:.4}</td><td>{:.4}</td>", m.mae_m, m.rmse_m);
-                for a in m.acc {
-                    let _ = write!(s, "<td>{:.2}%</td>", 100.0 * a);
-                }
-            }
+            Some(m) => s += &paper_cells(m),
             None => s += &"<td>–</td>".repeat(8),
         }
         s += "</tr>\n";
@@ -82,20 +94,38 @@ pub fn accuracy_html(rows: &[AccuracyRow], total: usize) -> String {
     s + "</table>\n"
 }
 
-/// Rows of `(label, objects, metrics)` as a table with MAE and the shares within 2.5 and 5 cm.
-fn object_rows_html<'a>(
-    head: &str,
-    rows: impl Iterator<Item = (String, String, &'a trand_eval::Metrics)>,
-) -> String {
+/// Per-object figures of one run: id, kind label, pixels and the paper's columns.
+pub fn objects_html(objects: &[PerObject]) -> String {
     let mut s = format!(
-        "<table><tr><th>{head}</th><th></th><th>pixels</th><th>MAE ↓ (m)</th><th>&lt;2.5cm ↑</th><th>&lt;5cm ↑</th></tr>\n"
+        "<table><tr><th>object</th><th>kind</th><th>pixels</th>{}</tr>\n",
+        paper_header()
     );
-    for (a, b, m) in rows {
+    for o in objects {
         let _ = writeln!(
             s,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.2}%</td><td>{:.2}%</td></tr>",
-            escape(&a),
-            escape(&b),
+            "<tr><td>{}</td><td>{}</td><td>{}</td>{}</tr>",
+            o.id,
+            escape(&o.kind_label()),
+            o.metrics.pixels,
+            paper_cells(&o.metrics)
+        );
+    }
+    s + "</table>\n"
+}
+
+/// Kinds pooled: label, objects, sequences, pixels, MAE and the shares within 2.5 and 5 cm.
+pub fn kind_rows_html(rows: &[KindRow]) -> String {
+    let mut s = String::from(
+        "<table><tr><th>kind</th><th>objects</th><th>sequences</th><th>pixels</th><th>MAE ↓ (m)</th><th>&lt;2.5cm ↑</th><th>&lt;5cm ↑</th></tr>\n",
+    );
+    for r in rows {
+        let m = &r.metrics;
+        let _ = writeln!(
+            s,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.4}</td><td>{:.2}%</td><td>{:.2}%</td></tr>",
+            escape(&r.label),
+            r.objects,
+            r.sequences,
             m.pixels,
             m.mae_m,
             100.0 * m.acc[2],
@@ -105,34 +135,31 @@ fn object_rows_html<'a>(
     s + "</table>\n"
 }
 
-/// Per-object figures of one run.
-pub fn objects_html(objects: &[trand_eval::PerObject]) -> String {
-    object_rows_html(
-        "object",
-        objects
-            .iter()
-            .map(|o| (o.id.to_string(), o.label.clone(), &o.metrics)),
-    )
-}
-
 /// Per-kind tables, one per method and state.
-pub fn kinds_html(tables: &[crate::kinds::KindTable]) -> String {
+pub fn kinds_html(tables: &[KindTable]) -> String {
     let mut s = String::new();
     for t in tables.iter().filter(|t| !t.rows.is_empty()) {
         let _ = write!(
             s,
-            "<h3>{} {} ({} sequences)</h3>\n{}",
+            "<h3>{}</h3>\n{}",
+            escape(&kinds::kind_table_title(t)),
+            kind_rows_html(&t.rows)
+        );
+    }
+    s
+}
+
+/// The per-object and per-kind tables of one sequence, per method and state.
+fn sequence_objects_html(tables: &[ObjectTable], sequence: &str) -> String {
+    let mut s = String::new();
+    for t in tables.iter().filter(|t| t.sequence == sequence) {
+        let _ = write!(
+            s,
+            "<h3>{} {}</h3>\n{}{}",
             t.method,
             t.state.as_str(),
-            t.sequences,
-            object_rows_html(
-                "kind",
-                t.rows.iter().map(|r| (
-                    r.label.clone(),
-                    format!("{} objects", r.objects),
-                    &r.metrics
-                ))
-            )
+            objects_html(&t.objects),
+            kind_rows_html(&kinds::pool_tables(std::slice::from_ref(t)))
         );
     }
     s
@@ -165,6 +192,16 @@ pub fn efficiency_html(rows: &[EfficiencyRow], state: State) -> String {
         );
     }
     s + "</table>\n"
+}
+
+/// Mean of the evaluated (non-NaN) pixels of an error map; 0 when there are none.
+fn mean_evaluated(e: &DepthMap) -> f64 {
+    let (sum, n) = e
+        .data
+        .iter()
+        .filter(|x| !x.is_nan())
+        .fold((0.0f64, 0usize), |(s, n), &x| (s + x as f64, n + 1));
+    sum / n.max(1) as f64
 }
 
 fn seq_file(name: &str) -> String {
@@ -324,21 +361,26 @@ impl StateView<'_> {
         let _ = write!(
             b,
             "<p>Images of <b>{method}</b>, first {} of {} test views. GT and rendered depth share one colour scale; \
-             the error is shown on the evaluated pixels only (GT objects with GT depth).</p>\n<div class=\"bars\">{}{}{}</div>\n",
+             the errors are shown on the evaluated pixels only (GT objects with GT depth). The signed error is \
+             blue where the rendering is nearer than the truth (a lid over an open container, a floater) and red \
+             where it is farther (a hole, the table seen through); an uncovered pixel counts as rendered at 0, so \
+             it is saturated blue.</p>\n<div class=\"bars\">{}{}{}</div>\n",
             views.len().min(SHOWN_VIEWS),
             views.len(),
             svg::colour_bar(lo, hi, "depth (m)", &format!("gd{st}")),
             svg::colour_bar(
                 0.0,
                 ERROR_MAX_M,
-                "absolute error (m), saturating",
+                &format!("absolute error (m), saturating at {ERROR_MAX_M}"),
                 &format!("ge{st}")
             ),
             svg::colour_bar_of(
                 &crate::colormap::DIVERGING,
                 -ERROR_MAX_M,
                 ERROR_MAX_M,
-                "rendered − GT depth (m): blue too near (a lid), red too far",
+                &format!(
+                    "rendered − GT depth (m), saturating at ±{ERROR_MAX_M}: blue too near, red too far"
+                ),
                 &format!("gs{st}"),
             )
         );
@@ -355,10 +397,11 @@ impl StateView<'_> {
             } else {
                 None
             };
-            let err = pred
+            let signed = pred
                 .as_ref()
                 .filter(|p| p.same_size(gt))
-                .map(|p| raster::abs_error(p, gt, inst));
+                .map(|p| raster::signed_error(p, gt, inst));
+            let err = signed.as_ref().map(raster::absolute);
             if let Some(e) = &err {
                 for &x in e.data.iter().filter(|x| !x.is_nan()) {
                     let bin = (x as f64 / HIST_MAX_M * HIST_BINS as f64) as usize;
@@ -387,19 +430,11 @@ impl StateView<'_> {
                         None => "<td class=\"note\">–</td>".into(),
                     })
                 };
-            let mae = err.as_ref().map(|e| {
-                let vals: Vec<f64> = e
-                    .data
-                    .iter()
-                    .filter(|x| !x.is_nan())
-                    .map(|&x| x as f64)
-                    .collect();
-                vals.iter().sum::<f64>() / vals.len().max(1) as f64
-            });
             let mut row = format!(
-                "<tr><td>{}<br><span class=\"note\">MAE {} m</span></td>",
+                "<tr><td>{}<br><span class=\"note\">MAE {} m<br>mean rendered − GT {} m</span></td>",
                 escape(&v.name),
-                fmt_opt(mae, 4)
+                fmt_opt(err.as_ref().map(mean_evaluated), 4),
+                fmt_opt(signed.as_ref().map(mean_evaluated), 4)
             );
             row += &cell(
                 format!("{st}_{f:06}_gt_depth.png"),
@@ -415,9 +450,9 @@ impl StateView<'_> {
             )?;
             row += &cell(
                 format!("{st}_{f:06}_signed_error.png"),
-                pred.as_ref().filter(|p| p.same_size(gt)).map(|p| {
-                    raster::colour_signed_error(&raster::signed_error(p, gt, inst), ERROR_MAX_M)
-                }),
+                signed
+                    .as_ref()
+                    .map(|e| raster::colour_signed_error(e, ERROR_MAX_M)),
             )?;
             row += &cell(
                 format!("{st}_{f:06}_gt_objects.png"),
@@ -570,14 +605,9 @@ fn sequence_page(
         b += "<h2>Metrics</h2>\n";
         b += &accuracy_html(&rows.rows, 1);
     }
-    for o in t.per_object.iter().filter(|o| o.sequence == entry.name) {
-        let _ = write!(
-            b,
-            "<h3>{} {}, per object</h3>\n{}",
-            o.method,
-            o.state.as_str(),
-            objects_html(&o.objects)
-        );
+    if t.per_object.iter().any(|o| o.sequence == entry.name) {
+        b += "<h2>Metrics per object and per kind</h2>\n";
+        b += &sequence_objects_html(&t.per_object, &entry.name);
     }
     let opts = LoadOptions {
         rgb: Load::Yes,

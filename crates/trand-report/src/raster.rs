@@ -23,13 +23,20 @@ pub fn colour_depth(d: &DepthMap, lo: f64, hi: f64) -> Rgb8Image {
 /// Per-pixel absolute error of `pred` on the evaluated pixels (object with GT depth, as the metrics;
 /// an uncovered prediction costs the GT depth); `NaN` elsewhere.
 pub fn abs_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap {
-    let mut e = signed_error(pred, gt, inst);
-    e.data.iter_mut().for_each(|v| *v = v.abs());
-    e
+    absolute(&signed_error(pred, gt, inst))
 }
 
-/// Per-pixel `pred − GT` on the evaluated pixels (an uncovered prediction counts as 0, so `−GT`);
-/// `NaN` elsewhere. Negative where the prediction is too near.
+/// `|e|` per pixel (`NaN` stays `NaN`).
+pub fn absolute(e: &DepthMap) -> DepthMap {
+    Image {
+        data: e.data.iter().map(|v| v.abs()).collect(),
+        ..e.clone()
+    }
+}
+
+/// Per-pixel `e = pred − GT` on the evaluated pixels (an uncovered prediction counts as 0, so
+/// `e = −GT`); `NaN` elsewhere. Negative where the prediction is too near (the sign opposite to the
+/// metrics' `gt − pred`, so that "too near" reads as "less depth").
 pub fn signed_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> DepthMap {
     let data = pred
         .data
@@ -53,7 +60,8 @@ pub fn signed_error(pred: &DepthMap, gt: &DepthMap, inst: &InstanceMap) -> Depth
     }
 }
 
-/// Signed error coloured over `[−max, max]` metres on the diverging map; `NaN` gets [`NO_VALUE`].
+/// Signed error `e` coloured on the diverging map at `t = e / max` (saturating beyond ±`max` metres):
+/// negative (too near) blue, positive (too far) red; `NaN` gets [`NO_VALUE`].
 pub fn colour_signed_error(e: &DepthMap, max: f64) -> Rgb8Image {
     map_rgb(e, |v| diverging(v as f64 / max))
 }
@@ -138,6 +146,36 @@ mod tests {
         let c = colour_error(&e, 1.0);
         assert_eq!(c.data[6..9], NO_VALUE);
         assert_eq!(c.data[3..6], crate::colormap::VIRIDIS[8]);
+    }
+
+    #[test]
+    fn signed_error_is_negative_and_blue_where_the_rendering_is_too_near() {
+        use crate::colormap::{DIVERGING, diverging};
+        // A lid 0.125 m in front of the surface, a surface 0.015625 m behind it, an exact pixel, an
+        // uncovered pixel, background.
+        let gt = Image::from_vec(5, 1, 1, vec![1.0f32, 1.0, 1.0, 0.5, 1.0]).unwrap();
+        let pred = Image::from_vec(5, 1, 1, vec![0.875f32, 1.015625, 1.0, 0.0, 0.5]).unwrap();
+        let inst = Image::from_vec(5, 1, 1, vec![1u16, 1, 2, 2, 0]).unwrap();
+        let e = signed_error(&pred, &gt, &inst);
+        assert_eq!(e.data[..4], [-0.125, 0.015625, 0.0, -0.5]);
+        assert!(e.data[4].is_nan(), "background is not evaluated");
+        assert_eq!(
+            absolute(&e).data[..4],
+            abs_error(&pred, &gt, &inst).data[..4]
+        );
+        let max = 0.0625;
+        let c = colour_signed_error(&e, max);
+        let px = |i: usize| -> [u8; 3] { c.data[3 * i..3 * i + 3].try_into().unwrap() };
+        assert_eq!(px(0), DIVERGING[0], "too near saturates blue");
+        assert_eq!(
+            px(1),
+            diverging(0.25),
+            "too far: a quarter of the way to red"
+        );
+        assert!(px(1)[0] > px(1)[2], "too far is reddish");
+        assert_eq!(px(2), DIVERGING[1], "exact is white");
+        assert_eq!(px(3), DIVERGING[0], "uncovered reads as too near");
+        assert_eq!(px(4), NO_VALUE);
     }
 
     #[test]

@@ -189,22 +189,31 @@ pub fn execute(plan: &Plan) -> anyhow::Result<Summary> {
     Ok(Summary { tables, steps })
 }
 
-/// Prints the main tables and the failures; `Err` when any step failed.
-pub fn finish(plan_report: &Path, s: &Summary) -> anyhow::Result<()> {
-    let n = s.tables.sequences.len();
+/// Prints the accuracy tables, the per-kind tables and where the report is.
+pub fn print_tables(report: &Path, tables: &Tables) {
+    let n = tables.sequences.len();
     println!(
         "\nDepth accuracy at t=0\n{}",
-        trand_report::tables::accuracy_markdown(&s.tables.accuracy_t0, n)
+        trand_report::tables::accuracy_markdown(&tables.accuracy_t0, n)
     );
     println!(
         "Depth accuracy at t=1\n{}",
-        trand_report::tables::accuracy_markdown(&s.tables.accuracy_t1, n)
+        trand_report::tables::accuracy_markdown(&tables.accuracy_t1, n)
     );
+    let kinds = trand_report::kinds::kinds_markdown(&tables.per_kind);
+    if !kinds.is_empty() {
+        println!("Depth accuracy per object kind (objects of every sequence pooled)\n\n{kinds}");
+    }
     println!(
         "tables: {}\nreport: {}",
-        plan_report.join(trand_report::layout::TABLES_MD).display(),
-        plan_report.join(trand_report::layout::INDEX_HTML).display()
+        report.join(trand_report::layout::TABLES_MD).display(),
+        report.join(trand_report::layout::INDEX_HTML).display()
     );
+}
+
+/// Prints the tables and the failures; `Err` when any step failed.
+pub fn finish(plan_report: &Path, s: &Summary) -> anyhow::Result<()> {
+    print_tables(plan_report, &s.tables);
     let failed = s.failed();
     if !failed.is_empty() {
         let list: Vec<String> = failed

@@ -1,5 +1,7 @@
 //! `trand eval`: depth metrics of a run folder against a sequence's test views (the paper's protocol,
-//! see `trand_eval::metrics`). Writes `RUN/metrics.json` and prints the Markdown table.
+//! see `trand_eval::metrics`), pooled over every object pixel and per GT object with its kind from
+//! the sequence's `sequence.json` (see `trand_eval::objects`). Writes `RUN/metrics.json` and prints
+//! both Markdown tables.
 
 use std::path::PathBuf;
 
@@ -35,6 +37,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let (state, m) = (ev.state, &ev.metrics);
     let row = format!("{name} {}", state.as_str());
     print!("{}", trand_eval::table(&[(row.as_str(), m)]));
+    println!("\nPer object ({row}):\n");
     print!("{}", trand_eval::object_table(&ev.objects));
     println!(
         "{} pixels ({} uncovered) over {} views; wrote {}",

@@ -46,7 +46,7 @@ fn depth(frame: u32) -> Image<f32> {
 
 /// A BOP sequence at `root`: train_0 frames 0, 1, 3; train_1 frame 0; test_0 and test_1 frames 0, 1.
 /// `root/fake_pred/{t0,t1}/{frame:06}.npy` hold predictions: GT + 1 cm at t0, GT + 3 cm at t1 (frame 0),
-/// exact GT for frame 1.
+/// exact GT for frame 1. `sequence.json` names object 1 an upright bowl and object 2 an inverted mug.
 pub fn sequence(root: &Path) {
     let splits = [
         ("train_0", State::T0, vec![0u32, 1, 3]),
@@ -111,7 +111,12 @@ pub fn sequence(root: &Path) {
             &serde_json::Value::Object(cams),
         );
     }
-    write_json(&root.join("sequence.json"), &json!({"removed_obj_id": 2}));
+    write_json(
+        &root.join("sequence.json"),
+        &json!({"removed_obj_id": 2, "objects": [
+            {"id": 1, "kind": "bowl", "params_m": {"initial_mode": "upright"}},
+            {"id": 2, "kind": "mug", "params_m": {"initial_mode": "inverted"}}]}),
+    );
 }
 
 /// The stand-in `trand`: appends its subcommand to `$FAKE_LOG`; `synth` copies `$FAKE_SEQ`;

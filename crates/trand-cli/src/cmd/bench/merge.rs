@@ -148,19 +148,6 @@ pub fn merge(out: &Path, shards: &[PathBuf]) -> anyhow::Result<(Manifest, trand_
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let (_, tables) = merge(&a.out, &a.shards)?;
-    let n = tables.sequences.len();
-    println!(
-        "\nDepth accuracy at t=0\n{}",
-        trand_report::tables::accuracy_markdown(&tables.accuracy_t0, n)
-    );
-    println!(
-        "Depth accuracy at t=1\n{}",
-        trand_report::tables::accuracy_markdown(&tables.accuracy_t1, n)
-    );
-    println!(
-        "tables: {}\nreport: {}",
-        a.out.join(layout::TABLES_MD).display(),
-        a.out.join(layout::INDEX_HTML).display()
-    );
+    super::print_tables(&a.out, &tables);
     Ok(())
 }
