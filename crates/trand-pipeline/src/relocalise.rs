@@ -226,7 +226,7 @@ pub fn relocalise(
     settings: &RenderSettings,
     opts: &Relocalise,
 ) -> Result<Vec<Relocation>> {
-    let target = Target::new(image.camera, image.instance, image.rgb);
+    let target = Target::new(image.camera, image.instance, image.rgb, ground);
     let settings = RenderSettings {
         maps: Maps::Rgb,
         geometry: GeometryMaps::Skipped,
