@@ -8,9 +8,10 @@
 //! which would otherwise widen the silhouette of the right pose and not of an upside-down one. Two
 //! silhouettes:
 //! * **splat**: each surfel with opacity above ½ a disc of [`SPLAT_SIGMAS`] standard deviations around
-//!   its projected centre. Over the moved objects of the four Blender sequences these discs agree with
-//!   the rendered silhouette at IoU 0.85–0.94, at 1/150 of a render's time; taking every surfel above
-//!   5 % opacity (a trained glass has 20–30 times as many) agrees less (0.73–0.84) at 30 times the cost;
+//!   its projected centre, cheap enough for the thousands of poses a search tries. Over the moved
+//!   objects of the four Blender sequences these discs agree with the rendered silhouette at IoU
+//!   0.85–0.94; every surfel above 5 % opacity (a trained glass has 20–30 times as many) agrees less
+//!   (0.73–0.84);
 //! * **rendered**: the object's surfels alone, `α > ½`, the measure decisions are taken on. The same
 //!   render gives the photometric error: the mean absolute difference between the rendered colour
 //!   (over the background colour) and the image with every pixel outside the object's mask set to
