@@ -21,7 +21,7 @@
 //! and fitted to the mask; the simulated pose settled the same way; the best of each distinct resting
 //! mode and the settled simulated one refined locally (position, yaw, tilt), every pose dropped onto
 //! its support; the best of these polished on its rendered score. An object rests on its *body*
-//! ([`body`]): the surfels that reached into another object's space at t = 0 do not count.
+//! ([`mod@body`]): the surfels that reached into another object's space at t = 0 do not count.
 //!
 //! # The score
 //! Each finalist and the simulated pose itself are rendered ([`silhouette`]) and scored
@@ -46,11 +46,11 @@
 //! [`Relocalise::min_gain`]; the simulated pose is scored with the same terms, so one left floating or
 //! tilted in mid-air loses to its own version at rest.
 
-mod body;
-mod pose;
-mod search;
-mod silhouette;
-mod support;
+pub mod body;
+pub mod pose;
+pub mod search;
+pub mod silhouette;
+pub mod support;
 
 use glam::DVec3;
 use trand_core::{Camera, Surfels};
@@ -148,7 +148,8 @@ pub struct Score {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PoseReport {
     pub origin: Origin,
-    /// Rotation from the t = 0 pose (quaternion `x, y, z, w`) and the move of the surfels' centroid (m).
+    /// Rotation from the t = 0 pose (quaternion `x, y, z, w`) and the move of the surfels' centroid
+    /// (m).
     pub rotation_xyzw: [f64; 4],
     pub translation_m: [f64; 3],
     /// Angle between the world vertical and the object's t = 0 vertical (degrees).
@@ -172,11 +173,13 @@ impl PoseReport {
 pub struct Relocation {
     pub object_id: u16,
     pub reason: Reason,
-    /// Rendered IoU of the simulated pose with the object's mask (working resolution), and of the pose kept.
+    /// Rendered IoU of the simulated pose with the object's mask (working resolution), and of the
+    /// pose kept.
     pub iou_before: f64,
     pub iou_after: f64,
     pub moved: bool,
-    /// Scores of the simulated pose and of the pose kept, and the pose kept (`None` when not searched).
+    /// Scores of the simulated pose and of the pose kept, and the pose kept (`None` when not
+    /// searched).
     pub score_before: Option<Score>,
     pub score_after: Option<Score>,
     pub chosen: Option<PoseReport>,
@@ -226,7 +229,7 @@ pub fn relocalise(
     settings: &RenderSettings,
     opts: &Relocalise,
 ) -> Result<Vec<Relocation>> {
-    let target = Target::new(image.camera, image.instance, image.rgb);
+    let target = Target::new(image.camera, image.instance, image.rgb, ground);
     let settings = RenderSettings {
         maps: Maps::Rgb,
         geometry: GeometryMaps::Skipped,
@@ -376,7 +379,7 @@ fn mean(means: &[[f32; 3]]) -> DVec3 {
     points(means).iter().sum::<DVec3>() / means.len().max(1) as f64
 }
 
-/// Per object of `bases` (t = 0 surfels), which of its surfels belong to its body ([`body`]), against
+/// Per object of `bases` (t = 0 surfels), which of its surfels belong to its body ([`mod@body`]), against
 /// the hulls of the other objects and of the `removed` ones.
 fn body_masks(bases: &[Surfels], removed: &[Surfels]) -> Vec<Vec<bool>> {
     let all: Vec<Option<Shape>> = bases

@@ -100,7 +100,7 @@ pub const ENERGY_DIRECTIONS: usize = 200;
 
 impl Shape {
     /// The shape of `s` (the object's surfels only; `body` says which may be solid, see
-    /// [`super::body`]). Solid points: opaque body surfels binned into [`SOLID_VOXEL_M`] voxels; each
+    /// [`mod@super::body`]). Solid points: opaque body surfels binned into [`SOLID_VOXEL_M`] voxels; each
     /// voxel with at least [`SOLID_MIN_SURFELS`] surfels in its 3×3×3 neighbourhood gives the mean of
     /// its own surfels. `None` when no voxel is solid.
     pub fn new(s: &Surfels, body: &[bool]) -> Option<Shape> {

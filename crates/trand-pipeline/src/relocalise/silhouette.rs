@@ -3,11 +3,15 @@
 //!
 //! Everything is taken at a working resolution of at most [`WORKING_WIDTH`] pixels across. The
 //! silhouette IoU does not count silhouette pixels on *other* objects' masks as false positives (the
-//! object may be behind them). Two silhouettes:
+//! object may be behind them). Surfels below the table are left out: the table hides them, and an
+//! object's reconstruction often reaches below its base (where it stood on another object at t = 0),
+//! which would otherwise widen the silhouette of the right pose and not of an upside-down one. Two
+//! silhouettes:
 //! * **splat**: each surfel with opacity above ½ a disc of [`SPLAT_SIGMAS`] standard deviations around
-//!   its projected centre. Over the moved objects of the four Blender sequences these discs agree with
-//!   the rendered silhouette at IoU 0.85–0.94, at 1/150 of a render's time; taking every surfel above
-//!   5 % opacity (a trained glass has 20–30 times as many) agrees less (0.73–0.84) at 30 times the cost;
+//!   its projected centre, cheap enough for the thousands of poses a search tries. Over the moved
+//!   objects of the four Blender sequences these discs agree with the rendered silhouette at IoU
+//!   0.85–0.94; every surfel above 5 % opacity (a trained glass has 20–30 times as many) agrees less
+//!   (0.73–0.84);
 //! * **rendered**: the object's surfels alone, `α > ½`, the measure decisions are taken on. The same
 //!   render gives the photometric error: the mean absolute difference between the rendered colour
 //!   (over the background colour) and the image with every pixel outside the object's mask set to
@@ -31,12 +35,16 @@ pub const WORKING_WIDTH: u32 = 200;
 /// pixels.
 pub const SPLAT_SIGMAS: f64 = 2.0;
 pub const SPLAT_MAX_RADIUS_PX: f64 = 3.0;
+/// Opacity logit of the surfels below the table in a silhouette render: none.
+const HIDDEN_OPACITY_LOGIT: f32 = -30.0;
 /// Splat surfels: opacity above ½, or the [`SPLAT_MIN_SURFELS`] most opaque when fewer pass.
 pub const SPLAT_MIN_SURFELS: usize = 200;
 
 /// The new image at the working resolution.
 pub struct Target {
     pub camera: Camera,
+    /// Table height: nothing below it is seen.
+    pub ground: f64,
     /// Instance id per pixel (block majority).
     pub ids: Vec<u16>,
     /// RGB in `[0, 1]` per pixel (block mean of the stored values); empty without an image.
@@ -46,7 +54,12 @@ pub struct Target {
 impl Target {
     /// `inst` and `rgb` (same size as the camera's image) reduced by the smallest integer factor
     /// that brings the width to at most [`WORKING_WIDTH`].
-    pub fn new(camera: &Camera, inst: &InstanceMap, rgb: Option<&Rgb8Image>) -> Target {
+    pub fn new(
+        camera: &Camera,
+        inst: &InstanceMap,
+        rgb: Option<&Rgb8Image>,
+        ground: f64,
+    ) -> Target {
         let f = inst.width.div_ceil(WORKING_WIDTH).max(1);
         let camera = Camera {
             intrinsics: camera.intrinsics.scaled(1.0 / f as f64),
@@ -58,7 +71,12 @@ impl Target {
             .filter(|r| r.same_size(inst) && r.channels == 3)
             .map(|r| downsample_rgb(r, f, w, h))
             .unwrap_or_default();
-        Target { camera, ids, rgb }
+        Target {
+            camera,
+            ground,
+            ids,
+            rgb,
+        }
     }
 
     pub fn width(&self) -> usize {
@@ -186,7 +204,13 @@ impl<'a> Scorer<'a> {
 
     /// The rendered silhouette's IoU and photometric error.
     pub fn render(&mut self, pose: &Pose) -> Result<Rendered> {
-        let out = render::<f32, _>(&self.place(pose), &self.target.camera, &self.settings)?;
+        let mut placed = self.place(pose);
+        for (m, o) in placed.means.iter().zip(placed.opacity_logits.iter_mut()) {
+            if (m[2] as f64) < self.target.ground {
+                *o = HIDDEN_OPACITY_LOGIT;
+            }
+        }
+        let out = render::<f32, _>(&placed, &self.target.camera, &self.settings)?;
         let k = self.target.camera.intrinsics;
         let all = [0, 0, k.width as usize - 1, k.height as usize - 1];
         let iou = self.iou(all, |p| out.alpha[p] > 0.5);
@@ -218,7 +242,11 @@ impl<'a> Scorer<'a> {
         let mut b = self.mask_box;
         let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
         for (p, &r) in self.points.iter().zip(&self.radius) {
-            let Some((x, y, z)) = self.target.camera.project(pose.apply(self.centroid, *p)) else {
+            let world = pose.apply(self.centroid, *p);
+            if world.z < self.target.ground {
+                continue;
+            }
+            let Some((x, y, z)) = self.target.camera.project(world) else {
                 continue;
             };
             let rp = (k.fx * r / z).clamp(0.5, SPLAT_MAX_RADIUS_PX);
@@ -334,7 +362,7 @@ mod tests {
             .collect();
         let k = cam.intrinsics;
         let inst = InstanceMap::from_vec(k.width, k.height, 1, ids).unwrap();
-        let target = Target::new(&cam, &inst, None);
+        let target = Target::new(&cam, &inst, None, 0.0);
         let c = s
             .means
             .iter()

@@ -7,10 +7,10 @@
 //! points ([`super::pose::Shape`]): a heightfield of their top surfaces ([`CELL_M`] cells, closed
 //! morphologically — the 3×3 maximum, then the 3×3 minimum — to fill the gaps between surfels
 //! without widening the objects), and a 3D occupancy grid of the same cells dilated by one cell, for
-//! contacts from the side. Seen from above the others are solid columns: a point of the object below another
-//! object's top surface in its column is inside it. This treats the others as convex from above (a
-//! glass cannot slide under another one's overhang), which is what lets resting be decided by a
-//! vertical drop.
+//! contacts from the side. Seen from above the others are solid columns: a point of the object below
+//! another object's top surface in its column is inside it. This treats the others as convex from
+//! above (a glass cannot slide under another one's overhang), which is what lets resting be decided
+//! by a vertical drop.
 //!
 //! # Resting
 //! * *Clearance* of a pose: the least height of the object's solid points above the support
@@ -27,14 +27,13 @@
 //!
 //! # Settling ([`Support::settle`])
 //! Quasi-static toppling: drop; while the centre of mass overhangs (contacts within
-//! [`SETTLE_CONTACT_M`]), turn the object about the hull
-//! feature nearest to it (the edge through two contacts, or the horizontal axis through a single
-//! contact at right angles to the overhang), in the sense that lowers the centre of mass, by
-//! [`SETTLE_STEP_DEG`], and drop again. A step after which the object would have to *rise* by more than
-//! [`BLOCK_M`] ran into something: it is halved instead, down to [`SETTLE_MIN_STEP_DEG`], which leaves
-//! the object touching what stopped it, a new contact for the next round. A glass tilted beyond its
-//! base thus falls onto its side, an upright one tilted a little stands back up, one falling
-//! towards a neighbour comes to lean on it.
+//! [`SETTLE_CONTACT_M`]), turn the object about the hull feature nearest to it (the edge through two
+//! contacts, or the horizontal axis through a single contact at right angles to the overhang), in the
+//! sense that lowers the centre of mass, by [`SETTLE_STEP_DEG`], and drop again. A step after which
+//! the object would have to *rise* by more than [`BLOCK_M`] ran into something: it is halved
+//! instead, down to [`SETTLE_MIN_STEP_DEG`], which leaves the object touching what stopped it, a new
+//! contact for the next round. A glass tilted beyond its base thus falls onto its side, an upright
+//! one tilted a little stands back up, one falling towards a neighbour comes to lean on it.
 
 use glam::{DQuat, DVec2, DVec3};
 

@@ -246,3 +246,35 @@ fn a_static_glass_on_its_mask_is_left_where_it_is_without_a_search() {
     );
     assert_eq!(scene.means, t0.means);
 }
+
+#[test]
+fn a_glass_simulated_tilted_in_mid_air_over_its_mask_is_put_down_lying_as_the_image_says() {
+    // Truth: lying on its side along x. Simulated: tilted 50° about the same centre, in mid-air,
+    // covering much of the same pixels (the old rule, IoU below ½, would not have searched).
+    let t0 = glass();
+    let shape = Shape::new(&t0, &vec![true; t0.len()]).unwrap();
+    let lying = Pose::IDENTITY
+        .turned(
+            shape.centroid,
+            DQuat::from_rotation_y(std::f64::consts::FRAC_PI_2),
+            shape.centroid,
+        )
+        .shifted(DVec3::new(0.03, 0.02, RADIUS as f64 - shape.centroid.z));
+    let truth = lying.place(&t0, shape.centroid);
+    let (inst, rgb) = image_of(&[(&truth, GLASS)]);
+    let mut scene = Pose::IDENTITY
+        .turned(
+            shape.centroid,
+            DQuat::from_rotation_y(50f64.to_radians()),
+            shape.centroid,
+        )
+        .shifted(DVec3::new(0.03, 0.02, 0.01))
+        .place(&t0, shape.centroid);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    assert!(r.iou_before > 0.5 && r.moved, "{r:?}");
+    let before = r.score_before.unwrap();
+    assert!(before.implausibility > 0.1, "{before:?}");
+    let err = distance(&scene, &truth);
+    assert!(err < 0.006, "surfels {err} m from the truth");
+    assert!((tilt_deg(&scene, &t0) - 90.0).abs() < 5.0);
+}
