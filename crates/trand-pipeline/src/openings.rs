@@ -13,8 +13,9 @@
 //! labelled with the object most views show). Each object's hull gives a radial profile `R(z)` about a
 //! vertical axis ([`Profile`]). The top of the profile that shrinks at least half as fast as a roof
 //! would (`−dR/dz ≥ ½ cot e_max`) is the roof; the first slice below it is the rim. An object is an
-//! **open vessel** ([`classify`]) when it stands upright, nothing rests on it, and its rim is its widest
-//! cross-section over the upper body (tumblers, mugs and bowls standing on their base). Its opening is
+//! **open vessel** ([`classify`]) when it stands upright (on the table or on another object), nothing
+//! rests on it, its whole top lies in the hull's box, and its rim is its widest cross-section over
+//! the upper body (tumblers, mugs and bowls standing on their base). Its opening is
 //! then carved ([`Opening::carves`]): everything above the rim, and everything further than a wall
 //! margin inside the profile above the floor. The training views then have to explain the opening with
 //! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
@@ -42,10 +43,6 @@ pub const WALL_MARGIN_M: f64 = 0.006;
 pub const FLOOR_M: f64 = 0.005;
 /// A rim must be at least this wide (m): narrower tops (bottle necks) are not openings one can see into.
 pub const MIN_RIM_RADIUS_M: f64 = 0.02;
-/// An open vessel stands on the table: its hull starts below this height (m). Stacked objects are
-/// left alone: the hull of an object resting on another mixes the two, and a bottle's shoulder over
-/// an upturned bowl passes for a roof.
-pub const ON_TABLE_M: f64 = 0.004;
 /// The rim may be this much narrower than the widest slice of the upper body and still count as the
 /// widest (m): about one voxel of hull noise on each side.
 pub const RIM_TOLERANCE_M: f64 = 0.0035;
@@ -55,13 +52,19 @@ pub const MAX_TAPER_M: f64 = 0.008;
 /// A straight-walled vessel's rim stands at least this many times its radius high; lower or
 /// narrowing bodies are judged by their crown ([`MAX_BOWL_CROWN`]).
 pub const MIN_ASPECT: f64 = 1.5;
+/// Share of a straight vessel's height that may narrow where its foot is hidden (see
+/// [`MIN_HIDDEN_FOOT_ASPECT`]).
+pub const HIDDEN_FOOT: f64 = 0.3;
+/// A straight vessel whose lowest [`HIDDEN_FOOT`] narrows must stand this many radii high: more than a
+/// sphere's rim (about 1.5 radii above its foot) or a spheroid's up to `c/a` of 1.3.
+pub const MIN_HIDDEN_FOOT_ASPECT: f64 = 2.0;
 /// Largest [`Profile::crown`] of a bowl. A bowl's profile is a spheroid's lower half; what differs is
 /// the hull above the widest slice: over a flat rim of radius `R` only the roof, `R tan e` high (0.88 R
 /// for ring views at 41°); over a spheroid with semi-axes `a`, `c` the cap and the roof over it, whose
 /// silhouette planes meet `√(a² sin² e + c² cos² e) / cos e` above the equator (1.1–1.3 a for
 /// `c/a` of 0.7–1). The crown also counts the band within a voxel of the widest slice, which adds
 /// about 0.2 to both; the threshold sits between the two.
-pub const MAX_BOWL_CROWN: f64 = 1.25;
+pub const MAX_BOWL_CROWN: f64 = 1.22;
 /// A bowl flares: its rim is at least this many times wider than its foot (the lowest fifth of its
 /// height). An upturned bowl, a dome, narrows from the table up.
 pub const MIN_BOWL_FLARE: f64 = 1.1;
@@ -79,7 +82,7 @@ pub const MIN_CUP_RIM_RATIO: f64 = 0.75;
 /// Largest [`Profile::elongation`] of a standing vessel: a mug's handle stretches its footprint a
 /// little.
 pub const MAX_ELONGATION: f64 = 1.3;
-/// Angular sectors of the radial profile; the median over sectors ignores a handle.
+/// Angular sectors of the radial profile; the lower quartile over sectors ignores a handle.
 const SECTORS: usize = 16;
 /// Slices below the roof's start whose widest gives the rim radius.
 const RIM_WINDOW: usize = 4;
@@ -87,6 +90,8 @@ const RIM_WINDOW: usize = 4;
 const ROOF_RUN: usize = 4;
 /// An object needs this many voxels for a profile.
 const MIN_VOXELS: usize = 200;
+/// A slice at most this wide (m) is a roof's apex, not the object's (see [`Profile::top_slice`]).
+const APEX_M: f64 = 2.0 * VOXEL_M;
 
 /// Labelled voxel centres of the training masks' visual hull, per object id.
 pub fn object_voxels(views: &[TrainView], min: DVec3, max: DVec3) -> BTreeMap<u16, Vec<DVec3>> {
@@ -146,7 +151,8 @@ pub struct Profile {
     pub axis: [f64; 2],
     /// Height of the bottom of slice 0.
     pub z0: f64,
-    /// Median over sectors of the largest radius in each sector, per slice (0 for an empty slice).
+    /// Lower quartile over sectors of the largest radius in each sector, per slice (0 for an empty
+    /// slice; see [`sector_radius`]).
     pub radius: Vec<f64>,
     /// Elongation of the footprint: `√(λ₁/λ₂)` of the covariance of the voxels' (x, y), 1 for a
     /// round object; a tumbler lying on its side is its length over its diameter (1.2–1.8).
@@ -202,7 +208,7 @@ impl Profile {
         let mut k = self.radius.len() - 1;
         // The apex of a roof is a few voxels wide: its slices count as roof whatever lies below.
         while k >= ROOF_RUN
-            && (self.radius[k] <= 2.0 * VOXEL_M
+            && (self.radius[k] <= APEX_M
                 || self.radius[k] < self.radius[k - ROOF_RUN] - drop)
         {
             k -= 1;
@@ -210,8 +216,9 @@ impl Profile {
         k
     }
 
-    /// Height of the hull's top above the lowest slice within a voxel of the widest one, over the
-    /// widest radius (see [`MAX_BOWL_CROWN`]).
+    /// Height of the hull's top (without its apex spike, see [`Profile::top_slice`]) above the
+    /// lowest slice within a voxel of the widest one, over the widest radius (see
+    /// [`MAX_BOWL_CROWN`]).
     pub fn crown(&self) -> f64 {
         let widest = self.radius.iter().fold(0.0f64, |a, &b| a.max(b));
         let first = self
@@ -219,7 +226,14 @@ impl Profile {
             .iter()
             .position(|&r| r >= widest - 1.5 * VOXEL_M)
             .unwrap_or(0);
-        (self.radius.len() - first) as f64 * VOXEL_M / widest.max(VOXEL_M)
+        (self.top_slice() + 1).saturating_sub(first) as f64 * VOXEL_M / widest.max(VOXEL_M)
+    }
+
+    /// The highest slice wider than [`APEX_M`]. Where the silhouette planes of a few views meet,
+    /// the hull ends in a spike one or two voxels thick whose height depends on the views' exact
+    /// azimuths (up to a few centimetres), not on the object; the shape tests leave it out.
+    pub fn top_slice(&self) -> usize {
+        self.radius.iter().rposition(|&r| r > APEX_M).unwrap_or(0)
     }
 
     /// Height of the top of slice `k`.
@@ -241,11 +255,18 @@ fn median_point(pts: &[DVec2]) -> Option<DVec2> {
     Some(DVec2::new(med(|p| p.x), med(|p| p.y)))
 }
 
-/// Median over [`SECTORS`] angular sectors of the largest distance from `axis` (empty sectors count
-/// as 0), plus half a voxel for the voxel's own extent.
+/// Lower quartile over [`SECTORS`] angular sectors of the largest distance from `axis` (empty
+/// sectors count as 0), plus half a voxel for the voxel's own extent.
+///
+/// Why not the median: a ring of `n` views carves a circle's hull to a polygon whose sides touch
+/// it and whose corners stand `1/cos(π/n)` out (15 % for six views), and over a rim the roof's
+/// planes cut those corners first. The median radius thus shrinks by several millimetres from a
+/// straight wall to its rim, as over a narrowing top, and more for wide vessels; the sides, which
+/// the lower quartile follows, stay at the wall's radius up to the rim. A handle widens a few
+/// sectors only.
 fn sector_radius(pts: &[DVec2], axis: DVec2) -> f64 {
     let far = sector_extents(pts, axis);
-    0.5 * (far[SECTORS / 2 - 1] + far[SECTORS / 2]) + 0.5 * VOXEL_M
+    0.5 * (far[SECTORS / 4 - 1] + far[SECTORS / 4]) + 0.5 * VOXEL_M
 }
 
 /// `√(λ₁/λ₂)` of the 2×2 covariance of `pts` (see [`Profile::elongation`]).
@@ -297,8 +318,9 @@ pub enum Closed {
     RoundTop,
     /// Another object rests on it.
     Supports,
-    /// It rests on another object (see [`ON_TABLE_M`]).
-    Stacked,
+    /// Its hull reaches the top of the box it was searched in, so its top was never seen: a bottle
+    /// cut at its shoulder would pass for a roof over a rim.
+    Truncated,
     /// Its footprint is oblong ([`MAX_ELONGATION`]), not a standing vessel's circle: an object lying
     /// on its side.
     NotRound,
@@ -372,15 +394,16 @@ pub fn max_elevation(cameras: &[Camera], at: DVec3) -> f64 {
 }
 
 /// Decides, for every object of the hull, whether its top is an opening; returns the openings and the
-/// decision per object (for `run.json`).
+/// decision per object (for `run.json`). `ceiling` is the top of the box the hull was searched in.
 pub fn classify(
     hull: &BTreeMap<u16, Vec<DVec3>>,
     cameras: &[Camera],
+    ceiling: f64,
 ) -> (Vec<Opening>, Vec<VesselTop>) {
     let mut openings = Vec::new();
     let mut report = Vec::new();
     for (&id, voxels) in hull {
-        let top = match open_top(id, voxels, hull, cameras) {
+        let top = match open_top(id, voxels, hull, cameras, ceiling) {
             Ok(o) => {
                 let t = Top::Open {
                     shape: o.shape,
@@ -406,7 +429,7 @@ pub fn classify(
 #[serde(rename_all = "snake_case")]
 pub enum Shape {
     /// Walls within [`MAX_TAPER_M`] of the rim's radius, at least [`MIN_ASPECT`] radii high: tumblers,
-    /// mugs (the sector median ignores the handle).
+    /// mugs (the sectors' lower quartile ignores the handle).
     Straight,
     /// Widest at the rim, flaring from its foot by at least [`MIN_BOWL_FLARE`], with a crown of at
     /// most [`MAX_BOWL_CROWN`].
@@ -444,17 +467,37 @@ fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape,
         return Err(Closed::NarrowTop);
     }
     // The whole wall above the base's rounding: a sphere's hull is a barrel over most of its height.
-    let narrowest = r[(0.1 * rim as f64) as usize..]
-        .iter()
-        .fold(f64::INFINITY, |a, &b| a.min(b));
+    // Or, for a tall vessel, the wall above its lowest [`HIDDEN_FOOT`]: there the hull narrows where
+    // the vessel's foot is hidden (its labels go to an object in front, or it stands on a support
+    // whose top takes its label), as a sphere's hull narrows, but a sphere's rim stands only about
+    // 1.5 radii high.
     let rim_height = (rim + 1) as f64 * VOXEL_M;
-    if narrowest >= rim_radius - MAX_TAPER_M && rim_height >= MIN_ASPECT * rim_radius {
+    let wall_from = |f: f64| {
+        r[(f * rim as f64) as usize..]
+            .iter()
+            .fold(f64::INFINITY, |a, &b| a.min(b))
+    };
+    let straight = |f: f64, aspect: f64| {
+        wall_from(f) >= rim_radius - MAX_TAPER_M && rim_height >= aspect * rim_radius
+    };
+    if straight(0.1, MIN_ASPECT) || straight(HIDDEN_FOOT, MIN_HIDDEN_FOOT_ASPECT) {
         Ok(Shape::Straight)
     } else if profile.crown() <= MAX_BOWL_CROWN && rim_radius >= MIN_BOWL_FLARE * foot_radius(r) {
         Ok(Shape::Bowl)
     } else {
         Err(Closed::RoundTop)
     }
+}
+
+/// The lowest slice of `r` (a straight vessel's profile up to its rim slice `rim`) within
+/// [`RIM_TOLERANCE_M`] of the narrowest slice of its wall above [`HIDDEN_FOOT`].
+fn wall_start(r: &[f64], rim: usize) -> usize {
+    let wall = r[(HIDDEN_FOOT * rim as f64) as usize..]
+        .iter()
+        .fold(f64::INFINITY, |a, &b| a.min(b));
+    r.iter()
+        .position(|&v| v >= wall - RIM_TOLERANCE_M)
+        .unwrap_or(0)
 }
 
 /// Widest radius of the lowest fifth of the slices `r`.
@@ -470,13 +513,14 @@ fn open_top(
     voxels: &[DVec3],
     hull: &BTreeMap<u16, Vec<DVec3>>,
     cameras: &[Camera],
+    ceiling: f64,
 ) -> Result<Opening, Closed> {
     let profile = Profile::of(voxels).ok_or(Closed::TooSmall)?;
+    if profile.slice_top(profile.radius.len() - 1) > ceiling - VOXEL_M {
+        return Err(Closed::Truncated);
+    }
     if profile.lean > MAX_LEAN {
         return Err(Closed::Leaning);
-    }
-    if profile.z0 > ON_TABLE_M {
-        return Err(Closed::Stacked);
     }
     let axis = DVec2::from_array(profile.axis);
     let centre = axis.extend(profile.z0 + 0.5 * profile.radius.len() as f64 * VOXEL_M);
@@ -496,7 +540,7 @@ fn open_top(
     let rim_z = profile.slice_top(rim);
     // Above a flat rim the hull is only the roof, at most `R tan e` high (the silhouette planes meet
     // over the axis); a bottle's shoulder is followed by a neck that stands higher.
-    let above = (profile.radius.len() - 1 - rim) as f64 * VOXEL_M;
+    let above = profile.top_slice().saturating_sub(rim) as f64 * VOXEL_M;
     if above > ROOF_SLACK * rim_radius * elevation.tan() + 2.0 * VOXEL_M {
         return Err(Closed::NarrowTop);
     }
@@ -511,9 +555,15 @@ fn open_top(
     if supports {
         return Err(Closed::Supports);
     }
+    // A straight vessel's base is where its wall starts: below, a hidden foot's hull may be its
+    // support's top, which is not carved.
+    let base = match shape {
+        Shape::Straight => wall_start(&profile.radius[..=rim], rim),
+        Shape::Bowl | Shape::Stemmed => 0,
+    };
     Ok(Opening {
         shape,
-        floor_z: profile.z0 + FLOOR_M,
+        floor_z: profile.slice_top(base) - VOXEL_M + FLOOR_M,
         rim_z,
         rim_radius,
         profile,

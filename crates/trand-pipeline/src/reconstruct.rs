@@ -159,29 +159,40 @@ pub fn train_views(
 
 /// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
 /// glassware (half the box's half-width).
-fn hull_box(views: &[TrainView]) -> Result<SlabBox> {
+pub fn hull_box(views: &[TrainView]) -> Result<SlabBox> {
+    box_of_height(views, 0.5)
+}
+
+/// [`hull_box`] with its height `fraction` of the box's half-width.
+fn box_of_height(views: &[TrainView], fraction: f64) -> Result<SlabBox> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
     let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
-    b.max[2] = 0.5 * (b.max[0] - b.min[0]) * 0.5;
+    b.max[2] = fraction * (b.max[0] - b.min[0]) * 0.5;
     Ok(b)
 }
 
+/// The box the opening prior's hull is searched in: twice as tall as [`hull_box`], so that an
+/// object standing on another is seen whole (its top decides whether it is open).
+pub fn openings_box(views: &[TrainView]) -> Result<SlabBox> {
+    box_of_height(views, 1.0)
+}
+
 /// The openings of the training masks' vessels, with the decision per object.
-fn find_openings(
+pub fn find_openings(
     views: &[TrainView],
     opts: &ReconstructOptions,
 ) -> Result<(Vec<Opening>, Vec<VesselTop>)> {
     if opts.openings == OpeningPrior::Off || opts.method.supervision() != Supervision::ObjectAware {
         return Ok((Vec::new(), Vec::new()));
     }
-    let b = hull_box(views)?;
+    let b = openings_box(views)?;
     let hull = crate::openings::object_voxels(
         views,
         glam::DVec3::from_array(b.min),
         glam::DVec3::from_array(b.max),
     );
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
-    Ok(crate::openings::classify(&hull, &cams))
+    Ok(crate::openings::classify(&hull, &cams, b.max[2]))
 }
 
 /// Removes the surfels inside any opening, with their optimiser state.
