@@ -14,18 +14,20 @@
 //! vertical axis ([`Profile`]). The top of the profile that shrinks at least half as fast as a roof
 //! would (`−dR/dz ≥ ½ cot e_max`) is the roof; the first slice below it is the rim. An object is an
 //! **open vessel** ([`classify`]) when it stands upright (on the table or on another object), nothing
-//! rests on it, its whole top lies in the hull's box, and its rim is its widest cross-section over
+//! stands on it (an object leaning on its rim from outside keeps its own voxels out of the carving),
+//! its whole top lies in the hull's box, and its rim is its widest cross-section over
 //! the upper body (tumblers, mugs and bowls standing on their base). Its opening is
 //! then carved ([`Opening::carves`]): everything above the rim, and everything further than a wall
 //! margin inside the profile above the floor. The training views then have to explain the opening with
 //! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
 //!
 //! Closed tops are never carved: spheroids, bottles and domes (an upturned bowl) narrow towards the
-//! top, wine glasses' bowls are wider than their rim, and an object that supports another is closed.
+//! top, wine glasses' bowls are wider than their rim, and an object that carries another over its
+//! top is closed.
 //! An upturned straight-walled vessel with nothing on it (an upturned mug) looks the same as an upright
 //! one to the masks and is taken as open: the one case this prior gets wrong.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
@@ -58,6 +60,9 @@ pub const HIDDEN_FOOT: f64 = 0.3;
 /// A straight vessel whose lowest [`HIDDEN_FOOT`] narrows must stand this many radii high: more than a
 /// sphere's rim (about 1.5 radii above its foot) or a spheroid's up to `c/a` of 1.3.
 pub const MIN_HIDDEN_FOOT_ASPECT: f64 = 2.0;
+/// Another object's voxels above a rim whose centre lies within this share of the rim's radius
+/// from the axis stand on the vessel; further out, the object leans on the rim.
+pub const MAX_LEANER_OFFSET: f64 = 0.5;
 /// Largest [`Profile::crown`] of a bowl. A bowl's profile is a spheroid's lower half; what differs is
 /// the hull above the widest slice: over a flat rim of radius `R` only the roof, `R tan e` high (0.88 R
 /// for ring views at 41°); over a spheroid with semi-axes `a`, `c` the cap and the roof over it, whose
@@ -316,7 +321,7 @@ pub enum Closed {
     /// Neither a straight-walled vessel nor a bowl: the hull rises higher above its widest slice than
     /// a roof over a rim would ([`Profile::crown`] above [`MAX_BOWL_CROWN`]), as over a spheroid.
     RoundTop,
-    /// Another object rests on it.
+    /// Another object stands on its top (see [`MAX_LEANER_OFFSET`]).
     Supports,
     /// Its hull reaches the top of the box it was searched in, so its top was never seen: a bottle
     /// cut at its shoulder would pass for a roof over a rim.
@@ -337,13 +342,34 @@ pub struct Opening {
     pub rim_radius: f64,
     /// Below this height nothing is carved (the base).
     pub floor_z: f64,
+    /// Hull voxels ([`voxel_key`]) of objects leaning on the rim, within the carved region: what lies
+    /// in them (or next to them) is theirs and is not carved.
+    #[serde(skip)]
+    pub others: HashSet<[i64; 3]>,
+}
+
+/// The voxel of the grid of pitch [`VOXEL_M`] (aligned with the world origin) that holds `p`.
+pub fn voxel_key(p: DVec3) -> [i64; 3] {
+    (p / VOXEL_M).floor().as_i64vec3().to_array()
 }
 
 impl Opening {
+    /// Whether `p` lies in or next to (one voxel) a voxel of [`Opening::others`]; the hull's grid
+    /// need not be aligned with [`voxel_key`]'s, which the margin covers.
+    fn is_others(&self, p: DVec3) -> bool {
+        let [x, y, z] = voxel_key(p);
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| (-1..=1).any(|dz| self.others.contains(&[x + dx, y + dy, z + dz])))
+        })
+    }
+
     /// Whether `p` lies in the carved region: above the rim within the rim's radius plus a margin,
     /// or above the floor and more than [`WALL_MARGIN_M`] inside the profile.
     pub fn carves(&self, p: [f32; 3]) -> bool {
         let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        if !self.others.is_empty() && self.is_others(p) {
+            return false;
+        }
         let r = (p.truncate() - DVec2::from_array(self.profile.axis)).length();
         if p.z > self.rim_z {
             return r < self.rim_radius + WALL_MARGIN_M && p.z < self.rim_z + 4.0 * self.rim_radius;
@@ -545,15 +571,27 @@ fn open_top(
         return Err(Closed::NarrowTop);
     }
     // Voxels of another object above the rim, inside the rim's circle: more than a few means it rests
-    // there (a stray voxel or two come from label noise at occlusions).
-    let supports = hull.iter().filter(|(o, _)| **o != id).any(|(_, vs)| {
-        vs.iter()
+    // there (a stray voxel or two come from label noise at occlusions). Centred over the opening,
+    // it stands on the vessel, or the "vessel" is an upturned one carrying it, and the top is left
+    // closed; off-centre, it leans on the rim from outside and the opening is carved around it.
+    let mut leaning = Vec::new();
+    for (_, vs) in hull.iter().filter(|(o, _)| **o != id) {
+        let above: Vec<DVec2> = vs
+            .iter()
             .filter(|p| p.z > rim_z && (p.truncate() - axis).length() < rim_radius)
-            .count()
-            > MIN_VOXELS / 4
-    });
-    if supports {
-        return Err(Closed::Supports);
+            .map(|p| p.truncate())
+            .collect();
+        if above.len() <= MIN_VOXELS / 4 {
+            continue;
+        }
+        let centre = above.iter().fold(DVec2::ZERO, |a, p| a + *p) / above.len() as f64;
+        if (centre - axis).length() < MAX_LEANER_OFFSET * rim_radius {
+            return Err(Closed::Supports);
+        }
+        leaning.extend(vs.iter().filter(|p| {
+            (p.truncate() - axis).length() < rim_radius + 2.0 * WALL_MARGIN_M
+                && p.z < rim_z + 4.0 * rim_radius
+        }));
     }
     // A straight vessel's base is where its wall starts: below, a hidden foot's hull may be its
     // support's top, which is not carved.
@@ -563,6 +601,7 @@ fn open_top(
     };
     Ok(Opening {
         shape,
+        others: leaning.iter().map(|p| voxel_key(*p)).collect(),
         floor_z: profile.slice_top(base) - VOXEL_M + FLOOR_M,
         rim_z,
         rim_radius,

@@ -238,6 +238,26 @@ fn a_vessel_with_another_object_on_it_is_closed_and_a_tumbler_standing_on_it_is_
 }
 
 #[test]
+fn a_vessel_something_leans_on_is_open_and_what_leans_is_not_carved() {
+    // A rod standing against the tumbler's rim from outside, its top above the rim: its voxels over
+    // the opening lie off-centre.
+    let rod = solid([0.036, 0.0], 0.0, 0.13, |_| 0.008);
+    let views = views(&[tumbler([0.0, 0.0]), rod]);
+    let hull = object_voxels(
+        &views,
+        DVec3::new(-0.2, -0.2, 0.0),
+        DVec3::new(0.2, 0.2, 0.2),
+    );
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+    let openings = classify(&hull, &cams, 0.2).0;
+    assert_eq!(openings.len(), 1, "the tumbler is open, the rod is not");
+    let o = &openings[0];
+    assert!(o.carves([0.0, 0.0, 0.06]), "the tumbler's inside");
+    assert!(o.carves([-0.015, 0.0, 0.1]), "the roof away from the rod");
+    assert!(!o.carves([0.03, 0.0, 0.1]), "the rod above the rim");
+}
+
+#[test]
 fn an_object_whose_top_the_hull_box_cuts_off_is_closed() {
     // A tumbler on a support, its top 17 cm up, in a box 15 cm high: what the box cuts off could
     // be a bottle's neck as well as a roof.
