@@ -142,7 +142,6 @@ fn a_toppled_glass_is_recovered_at_t1_by_silhouette_relocalisation() {
     );
 }
 
-
 /// A short run (150 iterations at quarter resolution) on the independent Blender data already beats the
 /// paper's TRansPose rows (t0: MAE 0.0380 m, 69.11 % under 2.5 cm; t1: 0.0864 m, 48.46 %) and finds the
 /// removed object.
