@@ -36,9 +36,14 @@ const NEVER: std::os::raw::c_long = -1;
 /// Call it first thing in `main`, before any other thread exists: mimalloc's option calls are not
 /// thread-safe.
 pub fn keep_freed_pages() {
-    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_some() {
-        return;
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        never_purge_if_default();
     }
+}
+
+/// Sets the purge delay to [`NEVER`] if [`PURGE_DELAY`] holds the option's default, and leaves any other
+/// value alone (a set option, or an index that names another option in this mimalloc build).
+fn never_purge_if_default() {
     // SAFETY: plain C calls on an integer option index; `mi_option_get`/`mi_option_set` accept any
     // index below the option count (15 is below it in both mimalloc v2 and v3), and no other thread
     // can call into mimalloc's options concurrently this early in `main`.
@@ -53,13 +58,34 @@ pub fn keep_freed_pages() {
 mod tests {
     use super::*;
 
+    fn purge_delay() -> std::os::raw::c_long {
+        // SAFETY: as in `never_purge_if_default`; the option is a plain integer that other test threads
+        // only read.
+        unsafe { mi_option_get(PURGE_DELAY) }
+    }
+
+    fn set_purge_delay(v: std::os::raw::c_long) {
+        // SAFETY: as above.
+        unsafe { mi_option_set(PURGE_DELAY, v) }
+    }
+
+    /// `cargo test` sets `MIMALLOC_PURGE_DELAY` for the processes it starts (`.cargo/config.toml`), so
+    /// [`keep_freed_pages`] itself returns early here; the test drives the option change directly, from
+    /// the default, and checks that the index is the purge delay by finding the environment's value
+    /// (or the default) there first.
     #[test]
-    fn purging_is_off_after_keep_freed_pages() {
-        keep_freed_pages();
-        let v = unsafe { mi_option_get(PURGE_DELAY) };
+    fn index_is_the_purge_delay_and_only_its_default_is_turned_off() {
+        let before = purge_delay();
         match std::env::var("MIMALLOC_PURGE_DELAY") {
-            Ok(s) => assert_eq!(v.to_string(), s.trim()),
-            Err(_) => assert_eq!(v, NEVER),
+            Ok(s) => assert_eq!(before.to_string(), s.trim(), "option {PURGE_DELAY}"),
+            Err(_) => assert_eq!(before, DEFAULT_PURGE_DELAY_MS, "option {PURGE_DELAY}"),
         }
+        set_purge_delay(DEFAULT_PURGE_DELAY_MS);
+        never_purge_if_default();
+        assert_eq!(purge_delay(), NEVER);
+        set_purge_delay(500);
+        never_purge_if_default();
+        assert_eq!(purge_delay(), 500, "a value set by the user is kept");
+        set_purge_delay(before);
     }
 }

@@ -1,18 +1,17 @@
-//! `trand eval` as a user runs it, on seq_101 with GT depth copied as the prediction.
+//! `trand eval` as a user runs it, on seq_101 with GT depth copied as the prediction (ignored unless
+//! asked for: it needs `../shared/data/blender/seq_101`).
 
-use std::path::PathBuf;
+#[path = "../../../testdata/shared_data.rs"]
+mod shared_data;
+
 use std::process::Command;
 
 use trand_io::{LoadOptions, ScratchDir, read_sequence_with};
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn eval_of_gt_copy_prints_perfect_row_and_writes_metrics_json() {
-    let data =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender/seq_101");
-    if !data.join("test_0").is_dir() {
-        eprintln!("note: {} absent, test skipped", data.display());
-        return;
-    }
+    let data = shared_data::shared_data("blender/seq_101");
     let run = ScratchDir::new("cli-eval").unwrap();
     std::fs::write(run.path().join("run.json"), r#"{"state": "t0"}"#).unwrap();
     let seq = read_sequence_with(&data, &LoadOptions::for_eval()).unwrap();

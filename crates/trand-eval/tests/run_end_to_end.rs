@@ -1,19 +1,17 @@
 //! `evaluate_run` on the real seq_101 test views: GT copied as the prediction, a constant offset,
-//! nothing predicted, and the error cases. Skipped with a note when the data is absent.
+//! nothing predicted, and the error cases. Ignored unless asked for (`--include-ignored`): they need
+//! `../shared/data/blender/seq_101`.
+
+#[path = "../../../testdata/shared_data.rs"]
+mod shared_data;
 
 use std::path::{Path, PathBuf};
 
 use trand_eval::{RunEvalError, THRESHOLDS_M, evaluate_run, prediction_path};
 use trand_io::{Image, LoadOptions, ScratchDir, Split, State, read_sequence_with};
 
-fn seq_dir() -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender/seq_101");
-    if p.join("test_0").is_dir() {
-        Some(p)
-    } else {
-        eprintln!("note: {} absent, test skipped", p.display());
-        None
-    }
+fn seq_dir() -> PathBuf {
+    shared_data::shared_data("blender/seq_101")
 }
 
 /// Writes GT depth (+ `offset` metres, or zeros) as predictions for the test views of `state`.
@@ -40,8 +38,9 @@ fn write_predictions(data: &Path, run: &Path, state: State, f: impl Fn(f32) -> f
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn gt_depth_as_prediction_scores_perfectly() {
-    let Some(data) = seq_dir() else { return };
+    let data = seq_dir();
     let run = ScratchDir::new("eval-gt").unwrap();
     let (n, _) = write_predictions(&data, run.path(), State::T0, |g| g);
     let (state, m) = evaluate_run(run.path(), &data, None).unwrap();
@@ -60,8 +59,9 @@ fn gt_depth_as_prediction_scores_perfectly() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn constant_offset_gives_that_mae_and_splits_the_thresholds() {
-    let Some(data) = seq_dir() else { return };
+    let data = seq_dir();
     let run = ScratchDir::new("eval-off").unwrap();
     std::fs::write(
         run.path().join("run.json"),
@@ -85,8 +85,9 @@ fn constant_offset_gives_that_mae_and_splits_the_thresholds() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn empty_prediction_costs_the_mean_gt_depth() {
-    let Some(data) = seq_dir() else { return };
+    let data = seq_dir();
     let run = ScratchDir::new("eval-zero").unwrap();
     let (n, mean_gt) = write_predictions(&data, run.path(), State::T0, |_| 0.0);
     let (_, m) = evaluate_run(run.path(), &data, Some(State::T0)).unwrap();
@@ -96,8 +97,9 @@ fn empty_prediction_costs_the_mean_gt_depth() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn missing_or_wrongly_sized_prediction_names_the_file() {
-    let Some(data) = seq_dir() else { return };
+    let data = seq_dir();
     let run = ScratchDir::new("eval-err").unwrap();
     write_predictions(&data, run.path(), State::T0, |g| g);
     let p = prediction_path(run.path(), 3);
@@ -127,8 +129,9 @@ fn missing_or_wrongly_sized_prediction_names_the_file() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn state_conflicting_with_run_json_is_an_error() {
-    let Some(data) = seq_dir() else { return };
+    let data = seq_dir();
     let run = ScratchDir::new("eval-state").unwrap();
     std::fs::write(run.path().join("run.json"), r#"{"state": "t0"}"#).unwrap();
     let e = evaluate_run(run.path(), &data, Some(State::T1)).unwrap_err();

@@ -1,5 +1,8 @@
 //! Readers on the real Blender sequences in `../shared/data/blender/` (relative to the workspace root).
-//! Each test prints a note and passes when the data is absent.
+//! Ignored unless asked for (`--include-ignored`); run without the data, each fails naming the folder.
+
+#[path = "../../../testdata/shared_data.rs"]
+mod shared_data;
 
 use std::path::PathBuf;
 
@@ -8,16 +11,8 @@ use trand_io::{
     select_train_views,
 };
 
-fn seq_dir(name: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/blender")
-        .join(name);
-    if p.join("train_0").is_dir() {
-        Some(p)
-    } else {
-        eprintln!("note: {} absent, test skipped", p.display());
-        None
-    }
+fn seq_dir(name: &str) -> PathBuf {
+    shared_data::shared_data(&format!("blender/{name}"))
 }
 
 fn json(p: PathBuf) -> serde_json::Value {
@@ -25,10 +20,9 @@ fn json(p: PathBuf) -> serde_json::Value {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn seq_101_has_the_documented_views_objects_and_removed_object() {
-    let Some(dir) = seq_dir("seq_101") else {
-        return;
-    };
+    let dir = seq_dir("seq_101");
     let seq = read_sequence_with(&dir, &LoadOptions::cameras_only()).unwrap();
     assert_eq!(seq.train_t0.len(), 13);
     assert_eq!(seq.train_t1.len(), 1);
@@ -50,10 +44,9 @@ fn seq_101_has_the_documented_views_objects_and_removed_object() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn birds_eye_camera_projects_workspace_centre_to_image_centre() {
-    let Some(dir) = seq_dir("seq_101") else {
-        return;
-    };
+    let dir = seq_dir("seq_101");
     let seq = read_sequence_with(&dir, &LoadOptions::cameras_only()).unwrap();
     let c = json(dir.join("sequence.json"))["workspace_center_m"]
         .as_array()
@@ -75,10 +68,9 @@ fn birds_eye_camera_projects_workspace_centre_to_image_centre() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn ring_views_sit_at_the_documented_distance_and_six_views_are_odd_frames() {
-    let Some(dir) = seq_dir("seq_101") else {
-        return;
-    };
+    let dir = seq_dir("seq_101");
     let seq = read_sequence_with(&dir, &LoadOptions::cameras_only()).unwrap();
     let s = json(dir.join("sequence.json"));
     let d = s["cameras"]["train_ring"]["ring_distance_m"]
@@ -119,10 +111,9 @@ fn ring_views_sit_at_the_documented_distance_and_six_views_are_odd_frames() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn depth_is_png_over_1000_and_table_pixels_unproject_to_the_table_plane() {
-    let Some(dir) = seq_dir("seq_101") else {
-        return;
-    };
+    let dir = seq_dir("seq_101");
     let seq = read_sequence(&dir).unwrap();
     let v = &seq.train_t0[0];
     let depth = v.depth.as_ref().unwrap();
@@ -156,10 +147,9 @@ fn depth_is_png_over_1000_and_table_pixels_unproject_to_the_table_plane() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn instance_maps_match_mask_pixel_counts_and_lose_the_removed_object() {
-    let Some(dir) = seq_dir("seq_101") else {
-        return;
-    };
+    let dir = seq_dir("seq_101");
     let opts = LoadOptions {
         rgb: Load::No,
         depth: Load::No,
@@ -196,10 +186,9 @@ fn instance_maps_match_mask_pixel_counts_and_lose_the_removed_object() {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn seq_105_reads_with_its_five_objects() {
-    let Some(dir) = seq_dir("seq_105") else {
-        return;
-    };
+    let dir = seq_dir("seq_105");
     let seq = read_sequence_with(&dir, &LoadOptions::for_eval()).unwrap();
     assert_eq!(seq.object_ids, vec![1, 2, 3, 4, 5]);
     assert!(seq.removed_ids.as_ref().is_some_and(|r| r.len() == 1));

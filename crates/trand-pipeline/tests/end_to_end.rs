@@ -1,8 +1,10 @@
 //! End-to-end checks of reconstruction and scene update: on a tiny synthetic scene (generated here by
 //! `trand-synth`, exact ground truth) and on the independent Blender sequences in `shared/data/blender`
-//! (skipped with a note when that folder is absent).
+//! (ignored unless asked for with `--include-ignored`).
 
-use std::path::{Path, PathBuf};
+#[path = "../../../testdata/shared_data.rs"]
+mod shared_data;
+
 use std::sync::atomic::AtomicBool;
 
 use trand_eval::{Metrics, evaluate};
@@ -140,28 +142,14 @@ fn a_toppled_glass_is_recovered_at_t1_by_silhouette_relocalisation() {
     );
 }
 
-fn blender(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/blender")
-        .join(name);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!(
-            "note: {} not found; Blender end-to-end check skipped",
-            p.display()
-        );
-        None
-    }
-}
-
 /// A short run (150 iterations at quarter resolution) on the independent Blender data already beats the
 /// paper's TRansPose rows (t0: MAE 0.0380 m, 69.11 % under 2.5 cm; t1: 0.0864 m, 48.46 %) and finds the
 /// removed object.
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn blender_sequences_beat_the_papers_rows_after_a_short_run() {
     for name in ["seq_101", "seq_105"] {
-        let Some(path) = blender(name) else { continue };
+        let path = shared_data::shared_data(&format!("blender/{name}"));
         let seq = read_sequence(&path).expect("read Blender sequence");
         let (m0, m1, removed) = run(&seq, 150, 4);
         println!(

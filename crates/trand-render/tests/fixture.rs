@@ -1,4 +1,4 @@
-//! The rasterizer against an independent dense float64 implementation (`shared/fixtures/surfel-raster`,
+//! The rasterizer against an independent dense float64 implementation (`tests/data/surfel-raster`,
 //! PyTorch autograd, same 2DGS rules): forward maps and gradients.
 
 mod common;
@@ -14,9 +14,7 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 }
 
 fn check(name: &str) {
-    let Some(f) = common::load_fixture(name) else {
-        return;
-    };
+    let f = common::load_fixture(name);
     let out = render::<f64, _>(&f.params, &f.camera, &RenderSettings::default()).expect("render");
     let a = &f.arrays;
     let tol = 1e-9;

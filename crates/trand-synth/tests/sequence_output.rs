@@ -1,6 +1,10 @@
 //! End-to-end checks of `generate` with the tiny preset: masks agree with depth, the table depth is
-//! exact, runs are bit-identical for any thread count, the layout matches the reference data, and
-//! bad settings fail cleanly. Run with `cargo test --release -p trand-synth`.
+//! exact, runs are bit-identical for any thread count, the layout matches the reference data (ignored
+//! unless asked for: it needs `../shared/data/blender/seq_101`), and bad settings fail cleanly. Run with
+//! `cargo test --release -p trand-synth`.
+
+#[path = "../../../testdata/shared_data.rs"]
+mod shared_data;
 
 use glam::{DMat3, DVec3};
 use serde_json::Value;
@@ -215,16 +219,9 @@ fn keys(v: &Value) -> BTreeSet<String> {
 }
 
 #[test]
+#[ignore = "needs ../shared/data/blender (see README: Tests)"]
 fn output_layout_matches_the_reference_blender_sequence() {
-    let reference =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender/seq_101");
-    if !reference.is_dir() {
-        println!(
-            "note: {} is absent; layout comparison skipped",
-            reference.display()
-        );
-        return;
-    }
+    let reference = shared_data::shared_data("blender/seq_101");
     let dir = scratch("layout");
     let out = dir.join("seq");
     let mut cfg = tiny(101, &out);

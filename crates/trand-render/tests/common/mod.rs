@@ -7,13 +7,6 @@ use rand::{RngExt, SeedableRng};
 use trand_core::{Camera, Intrinsics, math::logit, sh::SH_C0};
 use trand_render::ParamsOf;
 
-/// `../shared` beside the workspace (or `$TRAND_SHARED`).
-pub fn shared_dir() -> PathBuf {
-    std::env::var_os("TRAND_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared"))
-}
-
 pub struct Fixture {
     pub camera: Camera,
     pub params: ParamsOf<f64>,
@@ -22,14 +15,13 @@ pub struct Fixture {
     pub arrays: std::collections::HashMap<String, Vec<f64>>,
 }
 
-/// Loads a `surfel-raster` fixture; `None` (with a note) when the shared folder is absent.
-pub fn load_fixture(name: &str) -> Option<Fixture> {
-    let path = shared_dir().join("fixtures/surfel-raster").join(name);
-    if !path.exists() {
-        eprintln!("note: {} not found; fixture test skipped", path.display());
-        return None;
-    }
-    let mut npz = npyz::npz::NpzArchive::open(&path).expect("open npz");
+/// Loads a `surfel-raster` fixture from `tests/data/surfel-raster` (committed; see its README).
+pub fn load_fixture(name: &str) -> Fixture {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/surfel-raster")
+        .join(name);
+    let mut npz = npyz::npz::NpzArchive::open(&path)
+        .unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
     let names: Vec<String> = npz.array_names().map(str::to_owned).collect();
     let mut arrays = std::collections::HashMap::new();
     for n in names {
@@ -84,13 +76,13 @@ pub fn load_fixture(name: &str) -> Option<Fixture> {
         }
     }
     let opacities = arrays["opacities"].clone();
-    Some(Fixture {
+    Fixture {
         camera,
         params: p,
         scales,
         opacities,
         arrays,
-    })
+    }
 }
 
 /// A camera looking at the origin from `dist` metres, tilted, small image.
