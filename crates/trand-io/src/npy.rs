@@ -1,4 +1,6 @@
-//! Float depth maps as NumPy `.npy` files (`<f4`, C order, shape `(H, W)`), via `npyz`.
+//! Float depth maps as NumPy `.npy` files (`<f4`, C order, shape `(H, W)`), via `npyz`. The reader
+//! checks the header's shape against the bytes present before decoding (no allocation sized by an
+//! unchecked header).
 
 use std::path::Path;
 
@@ -53,6 +55,18 @@ pub fn read_npy_f32(path: &Path) -> Result<Image<f32>, IoError> {
         ));
     }
     let descr = npy.dtype().descr().trim_matches('\'').to_string();
+    // The shape comes from the file: check that its data is there before anything is allocated.
+    let item = match descr.as_str() {
+        "<f8" => 8u64,
+        _ => 4,
+    };
+    let need = h.checked_mul(w).and_then(|n| n.checked_mul(item));
+    if need.is_none_or(|n| n > bytes.len() as u64) {
+        return Err(err(format!(
+            "shape ({h}, {w}) needs more data than the file's {} bytes",
+            bytes.len()
+        )));
+    }
     let data: Vec<f32> = match descr.as_str() {
         "<f4" => npy.into_vec::<f32>().map_err(|e| err(e.to_string()))?,
         "<f8" => npy
