@@ -18,7 +18,8 @@
 //! `obj_index*`: those are zero, with K from the comment or [`DEFAULT_NUM_OBJECTS`]) and accepts any
 //! scalar property type. Writing then reading gives back the exact bits. Counts from the header are
 //! checked against the bytes present (with overflow-checked arithmetic) before anything is allocated,
-//! the object-channel count is bounded by [`MAX_NUM_OBJECTS`], and non-finite values are refused.
+//! and the object-channel count is bounded by [`MAX_NUM_OBJECTS`]. Values are returned as stored,
+//! non-finite ones included; consumers check them with `Surfels::validate`.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -378,8 +379,6 @@ pub fn surfels_from_ply_bytes(bytes: &[u8], path: &Path) -> Result<Surfels, IoEr
             s.obj_logits[i * k + c] = get(p);
         }
     }
-    // A non-finite parameter would poison every later stage (sorting, the rasterizer, the MPM).
-    s.validate().map_err(|e| err(e.to_string()))?;
     Ok(s)
 }
 

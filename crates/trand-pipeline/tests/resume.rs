@@ -116,7 +116,10 @@ fn a_checkpoint_of_another_sequence_or_other_options_is_refused() {
     let mut fewer = opts.clone();
     fewer.train.iterations = 4;
     let m = message(run_until(&seq, &fewer, resume(&ckpt), None));
-    assert!(m.contains("other options") && m.contains("iterations"), "{m}");
+    assert!(
+        m.contains("other options") && m.contains("iterations"),
+        "{m}"
+    );
     let mut seed = opts.clone();
     seed.train.seed = 9;
     let m = message(run_until(&seq, &seed, resume(&ckpt), None));

@@ -189,6 +189,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
     let ply_path = a.run.join("surfels.ply");
     let surfels = trand_io::read_surfels_ply(&ply_path)?;
+    surfels
+        .validate()
+        .with_context(|| format!("{}: unusable surfels", ply_path.display()))?;
     if ropts.method.supervision() == trand_pipeline::Supervision::ObjectAware {
         if surfels.num_objects != ropts.num_objects {
             bail!(
