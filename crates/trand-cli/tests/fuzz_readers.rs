@@ -271,6 +271,23 @@ fn surfel_ply_reader_survives_arbitrary_and_mutated_files() {
             read(&b)
         })
         .unwrap();
+    // A plain 2DGS layout (no obj_index properties: the channel count comes from the comment).
+    let plain = "ply\nformat binary_little_endian 1.0\ncomment trand surfels sh_degree 0 num_objects 3\n\
+                 element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                 property float f_dc_0\nproperty float f_dc_1\nproperty float f_dc_2\n\
+                 property float opacity\nproperty float scale_0\nproperty float scale_1\n\
+                 property float rot_0\nproperty float rot_1\nproperty float rot_2\nproperty float rot_3\n\
+                 end_header\n";
+    let mut b = plain.as_bytes().to_vec();
+    b.extend([0u8; 3 * 13 * 4]);
+    assert!(trand_io::ply::surfels_from_ply_bytes(&b, Path::new("p.ply")).is_ok());
+    runner(1500)
+        .run(&mutate_numbers(plain.to_string()), |h| {
+            let mut b = h.into_bytes();
+            b.extend([0u8; 3 * 13 * 4]);
+            read(&b)
+        })
+        .unwrap();
 }
 
 #[test]
