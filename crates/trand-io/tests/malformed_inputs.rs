@@ -192,3 +192,16 @@ fn npy_shape_beyond_the_file_is_refused_without_allocating() {
         assert!(e.contains("d.npy"), "{shape}: {e}");
     }
 }
+
+#[test]
+fn npy_version_2_header_length_beyond_the_file_is_refused_without_allocating() {
+    let dir = ScratchDir::new("io-mal-npy2").unwrap();
+    let p = dir.path().join("d.npy");
+    let ok = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 2), }";
+    let mut b = npy_bytes(ok, &[0u8; 16]);
+    // Version 2 reads a 4-byte header length: here the first bytes of the header text, ~660 MB.
+    b[6] = 2;
+    std::fs::write(&p, &b).unwrap();
+    let e = trand_io::read_npy_f32(&p).unwrap_err().to_string();
+    assert!(e.contains("d.npy") && e.contains("header"), "{e}");
+}
