@@ -205,3 +205,37 @@ fn npy_version_2_header_length_beyond_the_file_is_refused_without_allocating() {
     let e = trand_io::read_npy_f32(&p).unwrap_err().to_string();
     assert!(e.contains("d.npy") && e.contains("header"), "{e}");
 }
+
+/// The id of a process that has exited.
+fn dead_pid() -> u32 {
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let pid = child.id();
+    child.wait().unwrap();
+    pid
+}
+
+#[test]
+fn temp_folders_of_killed_runs_are_cleaned_by_the_next_run() {
+    let dir = ScratchDir::new("io-stale").unwrap();
+    let stale = dir.path().join(format!("run0.tmp-{}", dead_pid()));
+    std::fs::create_dir(&stale).unwrap();
+    trand_io::output::write_marker(&stale, trand_io::output::OutputKind::Run).unwrap();
+    std::fs::write(stale.join("surfels.ply"), b"half").unwrap();
+    // Not trand's (no marker): left alone even though its "process" is gone.
+    let foreign = dir.path().join(format!("run0.tmp-{}", dead_pid()));
+    std::fs::create_dir(&foreign).unwrap();
+    let r = trand_io::RunDir::create(&dir.path().join("run0")).unwrap();
+    assert!(
+        !stale.exists(),
+        "the killed run's temp folder is still there"
+    );
+    assert!(foreign.exists(), "an unmarked folder was removed");
+    assert!(r.path().join(trand_io::output::MARKER).is_file());
+    r.commit().unwrap();
+    assert!(
+        dir.path()
+            .join("run0")
+            .join(trand_io::output::MARKER)
+            .is_file()
+    );
+}
