@@ -408,7 +408,13 @@ const H: u32 = 3;
 /// RGB, an 8-bit mask holding `mask_value` at one pixel (BOP masks are 0/255, id maps hold the id)
 /// and depth, at the paths given relative to `root`.
 fn small_images(root: &Path, rgb: &str, mask: Option<(&str, u8)>, depth: Option<&str>) {
-    let c = Image::from_vec(W, H, 3, (0..W * H * 3).map(|i| i as u8 * 9).collect()).unwrap();
+    let c = Image::from_vec(
+        W,
+        H,
+        3,
+        (0..W * H * 3).map(|i| (i as u8).wrapping_mul(9)).collect(),
+    )
+    .unwrap();
     trand_io::write_rgb_png(&root.join(rgb), &c).unwrap();
     if let Some((m, value)) = mask {
         let mut img = Image::filled(W, H, 1, 0u8);
