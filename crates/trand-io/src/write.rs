@@ -246,7 +246,7 @@ impl RunDir {
             path: target.into(),
             reason: format!("cannot create a folder in {}: {e}", parent.display()),
         };
-        std::fs::create_dir(&tmp).map_err(unwritable)?;
+        std::fs::create_dir_all(&tmp).map_err(unwritable)?;
         let dir = Self {
             given: target.into(),
             target: resolved,

@@ -302,7 +302,7 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
             source,
         })?;
     }
-    std::fs::create_dir(&tmp).map_err(|source| SynthError::OutputUnwritable {
+    std::fs::create_dir_all(&tmp).map_err(|source| SynthError::OutputUnwritable {
         path: config.out.clone(),
         source,
     })?;
