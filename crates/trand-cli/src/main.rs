@@ -57,8 +57,42 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_message(&e));
             std::process::ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes joined by `: `, leaving out a cause whose text the message already
+/// holds (library errors often print their source themselves as well as exposing it).
+fn error_message(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let s = cause.to_string();
+        if out.contains(&s) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&s);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_message;
+
+    #[test]
+    fn error_messages_print_their_source_once() {
+        // A library error whose message repeats its source, as `#[error("...: {0}")]` with `#[from]` does.
+        let e = anyhow::anyhow!("disk on fire")
+            .context("reading x.json: disk on fire")
+            .context("loading the run");
+        assert_eq!(
+            error_message(&e),
+            "loading the run: reading x.json: disk on fire"
+        );
     }
 }

@@ -18,15 +18,37 @@ use serde::{Deserialize, Serialize};
 pub enum CameraError {
     #[error("image size {width}x{height} is empty")]
     EmptyImage { width: u32, height: u32 },
-    #[error("focal length fx={fx}, fy={fy} must be finite and positive")]
+    #[error("image size {width}x{height} is above the supported {MAX_IMAGE_SIDE} pixels a side")]
+    ImageTooLarge { width: u32, height: u32 },
+    #[error(
+        "focal length fx={fx}, fy={fy} must be finite, positive and at most {MAX_FOCAL_PER_SIDE} times the image side"
+    )]
     BadFocal { fx: f64, fy: f64 },
-    #[error("principal point cx={cx}, cy={cy} is not finite")]
+    #[error(
+        "principal point cx={cx}, cy={cy} must be finite and within {MAX_FOCAL_PER_SIDE} image sides of the image"
+    )]
     BadPrincipalPoint { cx: f64, cy: f64 },
     #[error("pose contains a non-finite value")]
     NonFinitePose,
+    #[error("pose translation {0:?} is beyond {MAX_TRANSLATION_M} m")]
+    FarTranslation([f64; 3]),
     #[error("pose rotation is not orthonormal (|RᵀR − I| = {0:.3e})")]
     NotARotation(f64),
+    #[error("pose rotation has determinant {0:.3} (a reflection), not +1")]
+    Reflection(f64),
 }
+
+/// The largest image side accepted (pixels): 8192 covers an 8K sensor, and keeps every per-pixel
+/// buffer (the training targets hold a dozen floats a pixel) within memory.
+pub const MAX_IMAGE_SIDE: u32 = 8192;
+
+/// Focal lengths and principal points beyond this many image sides (a field of view under 0.006°)
+/// are taken as corrupt.
+pub const MAX_FOCAL_PER_SIDE: f64 = 1e4;
+
+/// Camera translations beyond this distance (metres) are taken as corrupt: scenes are a table top,
+/// and larger values overflow single-precision squares in the rasterizer.
+pub const MAX_TRANSLATION_M: f64 = 1e4;
 
 /// Pinhole intrinsics with the integer-pixel-centre convention (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -154,8 +176,15 @@ impl Camera {
         (self.rotation().transpose() * d).normalize()
     }
 
-    /// Checks the camera can be rendered from.
+    /// Checks the camera can be rendered from: [`Camera::validate_intrinsics`] and
+    /// [`Camera::validate_pose`].
     pub fn validate(&self) -> Result<(), CameraError> {
+        self.validate_intrinsics()?;
+        self.validate_pose()
+    }
+
+    /// Checks the image size, focal length and principal point.
+    pub fn validate_intrinsics(&self) -> Result<(), CameraError> {
         let k = &self.intrinsics;
         if k.width == 0 || k.height == 0 {
             return Err(CameraError::EmptyImage {
@@ -163,12 +192,26 @@ impl Camera {
                 height: k.height,
             });
         }
-        if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0) {
+        if k.width > MAX_IMAGE_SIDE || k.height > MAX_IMAGE_SIDE {
+            return Err(CameraError::ImageTooLarge {
+                width: k.width,
+                height: k.height,
+            });
+        }
+        let side = k.width.max(k.height) as f64;
+        let bound = MAX_FOCAL_PER_SIDE * side;
+        let focal_ok = |f: f64| f.is_finite() && f > 0.0 && f <= bound;
+        if !(focal_ok(k.fx) && focal_ok(k.fy)) {
             return Err(CameraError::BadFocal { fx: k.fx, fy: k.fy });
         }
-        if !(k.cx.is_finite() && k.cy.is_finite()) {
+        if !(k.cx.is_finite() && k.cy.is_finite() && k.cx.abs() <= bound && k.cy.abs() <= bound) {
             return Err(CameraError::BadPrincipalPoint { cx: k.cx, cy: k.cy });
         }
+        Ok(())
+    }
+
+    /// Checks that the pose is finite, near, and a proper rotation (orthonormal, determinant +1).
+    pub fn validate_pose(&self) -> Result<(), CameraError> {
         if self
             .r_w2c
             .iter()
@@ -178,6 +221,9 @@ impl Camera {
         {
             return Err(CameraError::NonFinitePose);
         }
+        if self.t_w2c.iter().any(|v| v.abs() > MAX_TRANSLATION_M) {
+            return Err(CameraError::FarTranslation(self.t_w2c));
+        }
         let r = self.rotation();
         let e = (r.transpose() * r - DMat3::IDENTITY)
             .to_cols_array()
@@ -185,6 +231,10 @@ impl Camera {
             .fold(0.0f64, |a, v| a.max(v.abs()));
         if e > 1e-3 {
             return Err(CameraError::NotARotation(e));
+        }
+        let det = r.determinant();
+        if det < 0.0 {
+            return Err(CameraError::Reflection(det));
         }
         Ok(())
     }
@@ -236,6 +286,54 @@ mod tests {
         let mut c = good;
         c.r_w2c[0][0] = 2.0;
         assert!(matches!(c.validate(), Err(CameraError::NotARotation(_))));
+    }
+
+    #[test]
+    fn reflection_is_not_a_rotation() {
+        let good = Camera::look_at(
+            Intrinsics::centered(500.0, 64, 48),
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::ZERO,
+            DVec3::Y,
+        );
+        let mut c = good;
+        c.r_w2c[1] = c.r_w2c[1].map(|v| -v);
+        assert!(matches!(c.validate(), Err(CameraError::Reflection(d)) if (d + 1.0).abs() < 1e-9));
+    }
+
+    #[test]
+    fn absurd_focal_size_and_translation_are_rejected() {
+        let good = Camera::look_at(
+            Intrinsics::centered(500.0, 64, 48),
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::ZERO,
+            DVec3::Y,
+        );
+        let mut c = good;
+        c.intrinsics.fx = 1e308;
+        assert!(matches!(
+            c.validate_intrinsics(),
+            Err(CameraError::BadFocal { .. })
+        ));
+        let mut c = good;
+        c.intrinsics.cy = -1e300;
+        assert!(matches!(
+            c.validate_intrinsics(),
+            Err(CameraError::BadPrincipalPoint { .. })
+        ));
+        let mut c = good;
+        c.intrinsics.width = 100_000;
+        assert!(matches!(
+            c.validate_intrinsics(),
+            Err(CameraError::ImageTooLarge { .. })
+        ));
+        let mut c = good;
+        c.t_w2c[0] = 1e308;
+        assert!(matches!(
+            c.validate_pose(),
+            Err(CameraError::FarTranslation(_))
+        ));
+        assert!(c.validate_intrinsics().is_ok());
     }
 
     #[test]

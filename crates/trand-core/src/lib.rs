@@ -15,4 +15,4 @@ pub mod surfels;
 
 pub use camera::{Camera, CameraError, Intrinsics};
 pub use real::Real;
-pub use surfels::{DEFAULT_NUM_OBJECTS, Surfels, SurfelsError};
+pub use surfels::{DEFAULT_NUM_OBJECTS, MAX_NUM_OBJECTS, Surfels, SurfelsError};

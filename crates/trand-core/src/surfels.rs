@@ -23,6 +23,10 @@ use crate::sh::{MAX_SH_DEGREE, num_coeffs};
 /// Default number of object channels (TRAN-D's `NUM_OBJ`: background + up to 14 objects).
 pub const DEFAULT_NUM_OBJECTS: usize = 15;
 
+/// The most object channels (background included) any stage supports: the rasterizer keeps one
+/// accumulator per channel on the stack. Readers refuse larger counts before allocating.
+pub const MAX_NUM_OBJECTS: usize = 64;
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum SurfelsError {
     #[error("SH degree {0} is above the supported maximum {MAX_SH_DEGREE}")]

@@ -14,7 +14,7 @@
 //! Masks are combined into one [`InstanceMap`] per view. Classic BOP names masks by the annotation
 //! index (`_000000` is the first object of `scene_gt.json[frame]`); our data names them by object id,
 //! which is never 0. A folder with a `_000000` mask is therefore read in index mode and mapped through
-//! `scene_gt.json`. A pixel claimed by two masks keeps the lower object id (visible masks of an exact
+//! `scene_gt.json`. Every file in `mask_visib/` except hidden ones must be named so. A pixel claimed by two masks keeps the lower object id (visible masks of an exact
 //! render do not overlap). `depth_scale` must agree across every frame of the sequence.
 
 use std::collections::BTreeMap;
@@ -51,7 +51,24 @@ pub fn is_bop(root: &Path) -> bool {
     split_dir(root, "train_0").is_some()
 }
 
-/// Mask files of a split: frame → [(object id, path)].
+/// `(frame, object id)` of a mask file named `{frame}_{object id}.png`; why not otherwise.
+fn parse_mask_name(name: &std::ffi::OsStr) -> Result<(u32, u16), String> {
+    let name = name.to_str().ok_or("not valid UTF-8")?;
+    let stem = name.strip_suffix(".png").ok_or("not a `.png` file")?;
+    let (f, o) = stem
+        .split_once('_')
+        .ok_or("no `_` between frame and object id")?;
+    let f = f
+        .parse::<u32>()
+        .map_err(|_| format!("frame `{f}` is not an integer below 2^32"))?;
+    let o = o
+        .parse::<u16>()
+        .map_err(|_| format!("object id `{o}` is not an integer below 65536"))?;
+    Ok((f, o))
+}
+
+/// Mask files of a split: frame → [(object id, path)]. A file whose name does not parse is an
+/// error, not skipped: a mask left out would silently turn its object into background.
 fn mask_files(dir: &Path) -> Result<BTreeMap<u32, Vec<(u16, PathBuf)>>, IoError> {
     let mdir = dir.join("mask_visib");
     let mut out: BTreeMap<u32, Vec<(u16, PathBuf)>> = BTreeMap::new();
@@ -62,15 +79,16 @@ fn mask_files(dir: &Path) -> Result<BTreeMap<u32, Vec<(u16, PathBuf)>>, IoError>
     for e in entries {
         let e = e.map_err(|e| IoError::io(&mdir, e))?;
         let name = e.file_name();
-        let Some(stem) = name.to_str().and_then(|n| n.strip_suffix(".png")) else {
-            continue;
-        };
-        let Some((f, o)) = stem.split_once('_') else {
-            continue;
-        };
-        let (Ok(f), Ok(o)) = (f.parse::<u32>(), o.parse::<u16>()) else {
-            continue;
-        };
+        if name.as_encoded_bytes().starts_with(b".") {
+            continue; // hidden files (editor and desktop leftovers)
+        }
+        let (f, o) = parse_mask_name(&name).map_err(|reason| {
+            IoError::field(
+                e.path(),
+                "file name",
+                format!("{reason}; mask files are named {{frame}}_{{object id}}.png"),
+            )
+        })?;
         out.entry(f).or_default().push((o, e.path()));
     }
     for v in out.values_mut() {
@@ -194,9 +212,12 @@ fn read_split(
         let depth_scale = c.opt_f64("depth_scale")?.unwrap_or(1.0);
         scale.check(depth_scale, &cam_path, c.name("depth_scale"))?;
         let rgb_path = dir.join("rgb").join(format!("{frame:06}.png"));
-        let (width, height) = match (c.opt_u32("width")?, c.opt_u32("height")?) {
-            (Some(w), Some(h)) => (w, h),
-            _ => image_size(&rgb_path)?,
+        let ((width, height), size_field) = match (c.opt_u32("width")?, c.opt_u32("height")?) {
+            (Some(w), Some(h)) => ((w, h), c.name("width/height")),
+            _ => (
+                image_size(&rgb_path)?,
+                format!("size of {}", rgb_path.display()),
+            ),
         };
         let k = Intrinsics {
             fx: kk[0],
@@ -206,6 +227,7 @@ fn read_split(
             width,
             height,
         };
+        pose::check_intrinsics(&k, &cam_path, &c.name("cam_K"), &size_field)?;
         let r = [[r[0], r[1], r[2]], [r[3], r[4], r[5]], [r[6], r[7], r[8]]];
         let t = [t[0] / MM_PER_M, t[1] / MM_PER_M, t[2] / MM_PER_M];
         let camera = pose::from_w2c(k, r, t, &cam_path, &c.name("cam_R_w2c/cam_t_w2c"))?;

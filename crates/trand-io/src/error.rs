@@ -81,6 +81,8 @@ pub enum IoError {
     Ply { path: PathBuf, reason: String },
     #[error("{path}: NPY: {reason}")]
     Npy { path: PathBuf, reason: String },
+    #[error("output {path}: {reason}")]
+    Output { path: PathBuf, reason: String },
 }
 
 impl IoError {

@@ -8,6 +8,8 @@
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
 //! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
+//! * [`output`]: checks of output folders before work starts, the marker of folders trand wrote, and
+//!   the clean-up of temporary folders left by killed runs.
 
 pub mod bop;
 pub mod error;
@@ -16,6 +18,7 @@ mod json;
 pub mod mesh;
 pub mod nerfstudio;
 pub mod npy;
+pub mod output;
 mod paths;
 pub mod ply;
 mod pose;

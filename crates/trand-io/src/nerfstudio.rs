@@ -110,6 +110,7 @@ fn read_file(
     };
     for (i, f) in top.objects("frames")?.into_iter().enumerate() {
         let k = intrinsics(&f, &top)?;
+        pose::check_intrinsics(&k, path, &f.name("fl_x/fl_y/cx/cy"), &f.name("w/h"))?;
         let mut c2w = f.mat4("transform_matrix")?;
         for row in c2w.iter_mut().take(3) {
             row[1] = -row[1];

@@ -1,4 +1,6 @@
-//! Float depth maps as NumPy `.npy` files (`<f4`, C order, shape `(H, W)`), via `npyz`.
+//! Float depth maps as NumPy `.npy` files (`<f4`, C order, shape `(H, W)`), via `npyz`. The reader
+//! checks the header's shape against the bytes present before decoding (no allocation sized by an
+//! unchecked header).
 
 use std::path::Path;
 
@@ -34,6 +36,29 @@ pub fn write_npy_f32(path: &Path, img: &Image<f32>) -> Result<(), IoError> {
     write_atomic(path, &buf)
 }
 
+/// Checks the preamble (`\x93NUMPY`, version, header length) against the file's size: the decoder
+/// allocates the header's stated length before reading it.
+fn check_header_length(bytes: &[u8]) -> Result<(), String> {
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err("not an NPY file (no \\x93NUMPY magic)".into());
+    }
+    let (len, start) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        v => return Err(format!("NPY version {v} is not supported")),
+    };
+    if len > bytes.len() - start {
+        return Err(format!(
+            "header of {len} bytes is longer than the file's {} bytes",
+            bytes.len()
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a `(H, W)` (or `(H, W, 1)`) float32 or float64 `.npy` in C order as a single-channel image.
 pub fn read_npy_f32(path: &Path) -> Result<Image<f32>, IoError> {
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
@@ -41,6 +66,7 @@ pub fn read_npy_f32(path: &Path) -> Result<Image<f32>, IoError> {
         path: path.into(),
         reason,
     };
+    check_header_length(&bytes).map_err(err)?;
     let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| err(e.to_string()))?;
     let shape = npy.shape().to_vec();
     let (h, w) = match shape.as_slice() {
@@ -53,6 +79,18 @@ pub fn read_npy_f32(path: &Path) -> Result<Image<f32>, IoError> {
         ));
     }
     let descr = npy.dtype().descr().trim_matches('\'').to_string();
+    // The shape comes from the file: check that its data is there before anything is allocated.
+    let item = match descr.as_str() {
+        "<f8" => 8u64,
+        _ => 4,
+    };
+    let need = h.checked_mul(w).and_then(|n| n.checked_mul(item));
+    if need.is_none_or(|n| n > bytes.len() as u64) {
+        return Err(err(format!(
+            "shape ({h}, {w}) needs more data than the file's {} bytes",
+            bytes.len()
+        )));
+    }
     let data: Vec<f32> = match descr.as_str() {
         "<f4" => npy.into_vec::<f32>().map_err(|e| err(e.to_string()))?,
         "<f8" => npy

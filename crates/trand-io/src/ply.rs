@@ -16,19 +16,25 @@
 //!
 //! The reader finds properties by name, so it also reads plain 2DGS files (no `f_seg_*`, no
 //! `obj_index*`: those are zero, with K from the comment or [`DEFAULT_NUM_OBJECTS`]) and accepts any
-//! scalar property type. Writing then reading gives back the exact bits.
+//! scalar property type. Writing then reading gives back the exact bits. Counts from the header are
+//! checked against the bytes present (with overflow-checked arithmetic) before anything is allocated,
+//! and the object-channel count is bounded by [`MAX_NUM_OBJECTS`]. Values are returned as stored,
+//! non-finite ones included; consumers check them with `Surfels::validate`.
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use trand_core::math::quat_to_rotmat;
 use trand_core::sh::{MAX_SH_DEGREE, num_coeffs};
-use trand_core::{DEFAULT_NUM_OBJECTS, Surfels};
+use trand_core::{DEFAULT_NUM_OBJECTS, MAX_NUM_OBJECTS, Surfels};
 
 use crate::error::IoError;
 use crate::write::write_atomic;
 
 const COMMENT_TAG: &str = "trand surfels";
+
+/// More vertex properties than any surfel layout has (degree 3 with 64 object channels has 170).
+const MAX_PROPERTIES: usize = 4096;
 
 /// The property names of a surfel PLY with `rest` coefficients per channel and `k` object channels.
 pub fn surfel_property_names(rest: usize, k: usize) -> Vec<String> {
@@ -233,6 +239,9 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header, IoError> {
             ["property", ty, name] if element.as_deref() == Some("vertex") => {
                 let s = Scalar::parse(ty)
                     .ok_or_else(|| err(format!("property `{name}` has unknown type `{ty}`")))?;
+                if h.props.len() >= MAX_PROPERTIES {
+                    return Err(err(format!("more than {MAX_PROPERTIES} vertex properties")));
+                }
                 h.props.push((name.to_string(), s, h.stride));
                 h.stride += s.size();
             }
@@ -253,14 +262,20 @@ pub fn surfels_from_ply_bytes(bytes: &[u8], path: &Path) -> Result<Surfels, IoEr
     };
     let h = parse_header(bytes, path)?;
     let body = &bytes[h.body_offset..];
-    if body.len() < h.count * h.stride {
+    // The count comes from the file: multiply with overflow checks, and compare with the bytes
+    // present before anything is allocated from it.
+    let needed = h.count.checked_mul(h.stride);
+    if needed.is_none_or(|b| body.len() < b) {
         return Err(err(format!(
             "truncated: {} vertices of {} bytes need {} bytes, found {}",
             h.count,
             h.stride,
-            h.count * h.stride,
+            needed.map_or_else(|| "more than 2^64".to_string(), |b| b.to_string()),
             body.len()
         )));
+    }
+    if h.count > 0 && h.stride == 0 {
+        return Err(err(format!("{} vertices but no properties", h.count)));
     }
     let index: HashMap<&str, (Scalar, usize)> = h
         .props
@@ -302,6 +317,11 @@ pub fn surfels_from_ply_bytes(bytes: &[u8], path: &Path) -> Result<Surfels, IoEr
     } else {
         h.num_objects.unwrap_or(DEFAULT_NUM_OBJECTS)
     };
+    if k > MAX_NUM_OBJECTS {
+        return Err(err(format!(
+            "num_objects {k} is above the supported maximum {MAX_NUM_OBJECTS}"
+        )));
+    }
     if let Some(kc) = h.num_objects
         && k_file > 0
         && kc != k_file

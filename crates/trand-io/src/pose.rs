@@ -21,6 +21,32 @@ fn check_camera(cam: Camera, path: &Path, field: &str) -> Result<Camera, IoError
     }
 }
 
+/// Checks intrinsics read from `path`: size errors name `size_field`, focal length and principal
+/// point errors name `k_field`.
+pub(crate) fn check_intrinsics(
+    k: &Intrinsics,
+    path: &Path,
+    k_field: &str,
+    size_field: &str,
+) -> Result<(), IoError> {
+    let cam = Camera::new(
+        *k,
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        [0.0; 3],
+    );
+    cam.validate_intrinsics().map_err(|e| {
+        let field = match e {
+            CameraError::EmptyImage { .. } | CameraError::ImageTooLarge { .. } => size_field,
+            _ => k_field,
+        };
+        IoError::BadCamera {
+            path: path.into(),
+            field: field.into(),
+            reason: e.to_string(),
+        }
+    })
+}
+
 /// A camera from a world-to-camera rotation (row-major) and translation in metres.
 pub(crate) fn from_w2c(
     k: Intrinsics,

@@ -89,6 +89,7 @@ fn read_file(
     let mut views = Vec::new();
     for (i, f) in top.objects("frames")?.into_iter().enumerate() {
         let k = intrinsics(&f, &top)?;
+        pose::check_intrinsics(&k, path, &f.name("cam"), &f.name("w/h"))?;
         let mut c2w = f.mat4("transform_matrix")?;
         if let Some(h) = &hand_eye {
             c2w = pose::mat4_mul(&c2w, h);

@@ -207,41 +207,54 @@ pub fn write_rgb_f32_png(path: &Path, img: &Image<f32>) -> Result<(), IoError> {
 
 /// An output directory built under a temporary name and renamed into place by [`RunDir::commit`].
 ///
-/// Files go to [`RunDir::path`] (`TARGET.tmp-PID`). Dropping an uncommitted `RunDir` deletes the temp
-/// folder, so an aborted run leaves nothing behind under the target name.
+/// Files go to [`RunDir::path`] (`TARGET.tmp-PID`, beside the target), which holds the marker of
+/// folders trand wrote ([`crate::output`]) from the start. Dropping an uncommitted `RunDir` deletes
+/// the temp folder, so an aborted run leaves nothing behind under the target name; the temp folders
+/// of killed runs are removed by the next `RunDir` for the same target.
 pub struct RunDir {
+    /// The target as given (returned by the commit).
+    given: PathBuf,
+    /// The target resolved ([`crate::output::resolve_target`]).
     target: PathBuf,
     tmp: PathBuf,
     committed: bool,
 }
 
 impl RunDir {
-    /// Starts a run directory for `target`, which must not exist yet.
+    /// Starts a run directory for `target`, which must not exist yet (nor be the current folder or
+    /// one of its ancestors). Errors name `target`, not the temporary folder.
     pub fn create(target: &Path) -> Result<Self, IoError> {
-        if target.exists() {
-            return Err(IoError::Io {
+        let resolved = crate::output::resolve_target(target)?;
+        if crate::output::occupied(&resolved) {
+            return Err(IoError::Output {
                 path: target.into(),
-                source: std::io::Error::new(
-                    std::io::ErrorKind::AlreadyExists,
-                    "output directory already exists",
-                ),
+                reason: "already exists".into(),
             });
         }
-        let mut name = target
+        let name = resolved
             .file_name()
-            .map(|n| n.to_os_string())
-            .unwrap_or_else(|| "run".into());
-        name.push(format!(".tmp-{}", std::process::id()));
-        let tmp = target.with_file_name(name);
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let prefix = format!("{name}.tmp-");
+        let parent = resolved.parent().unwrap_or(Path::new("/"));
+        crate::output::clean_stale_temps(parent, &prefix);
+        let tmp = parent.join(format!("{prefix}{}", std::process::id()));
         if tmp.exists() {
             std::fs::remove_dir_all(&tmp).map_err(|e| IoError::io(&tmp, e))?;
         }
-        std::fs::create_dir_all(&tmp).map_err(|e| IoError::io(&tmp, e))?;
-        Ok(Self {
-            target: target.into(),
+        let unwritable = |e: std::io::Error| IoError::Output {
+            path: target.into(),
+            reason: format!("cannot create a folder in {}: {e}", parent.display()),
+        };
+        std::fs::create_dir_all(&tmp).map_err(unwritable)?;
+        let dir = Self {
+            given: target.into(),
+            target: resolved,
             tmp,
             committed: false,
-        })
+        };
+        crate::output::write_marker(&dir.tmp, crate::output::OutputKind::Run)?;
+        Ok(dir)
     }
 
     /// Where to write files until the commit.
@@ -251,9 +264,15 @@ impl RunDir {
 
     /// Renames the temporary folder to the target; returns the target path.
     pub fn commit(mut self) -> Result<PathBuf, IoError> {
+        if crate::output::occupied(&self.target) {
+            return Err(IoError::Output {
+                path: self.target.clone(),
+                reason: "appeared while the run was being written; the new run is not kept".into(),
+            });
+        }
         std::fs::rename(&self.tmp, &self.target).map_err(|e| IoError::io(&self.target, e))?;
         self.committed = true;
-        Ok(self.target.clone())
+        Ok(self.given.clone())
     }
 }
 

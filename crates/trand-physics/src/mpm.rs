@@ -473,13 +473,12 @@ fn stencil(x: Vec3, inv_dx: f32) -> (IVec3, Vec3) {
 }
 
 /// `⌊v⌋` per component without a libm call (`floorf` is not inlined on the baseline x86-64 target,
-/// and it was 7 % of the substep). Exact for |v| < 2³¹. Beyond that the conversion saturates and the
-/// subtraction wraps (explicitly: an overflow, not a panic); the grid-size check then reports the
-/// particles' span as [`MpmError::GridTooLarge`].
+/// and it was 7 % of the substep). Exact for |v| < 2³¹; beyond, the conversion saturates and so does
+/// the subtraction (the grid-size check then refuses the region).
 #[inline(always)]
 fn floor_i32(v: Vec3) -> IVec3 {
     let t = v.as_ivec3(); // truncation towards zero
-    t.wrapping_sub(IVec3::select(t.as_vec3().cmpgt(v), IVec3::ONE, IVec3::ZERO))
+    t.saturating_sub(IVec3::select(t.as_vec3().cmpgt(v), IVec3::ONE, IVec3::ZERO))
 }
 
 /// P2G for one chunk: deformation update, stress, then scatter into the chunk's own grid.

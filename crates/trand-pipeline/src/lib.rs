@@ -8,8 +8,10 @@
 //! * [`mod@reconstruct`]: the t = 0 run from random initialisation, with the paper's ablations.
 //! * [`mod@update`]: the t = 1 scene update — removal detection, deletion, TSDF mesh, MLS-MPM, single-image
 //!   refinement.
+//! * [`checkpoint`]: checkpoints that resume a reconstruction exactly.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
+pub mod checkpoint;
 pub mod contact;
 pub mod detect;
 pub mod openings;

@@ -19,6 +19,7 @@ use trand_io::{Sequence, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
+use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::openings::{Opening, VesselTop};
 use crate::targets::{self, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
@@ -91,6 +92,57 @@ impl Default for ReconstructOptions {
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
+    }
+}
+
+/// The most initial points (slab volume + 4 faces) accepted: fifty times the authors' 100k.
+pub const MAX_INIT_POINTS: usize = 5_000_000;
+
+/// The largest training downsampling factor.
+pub const MAX_DOWNSAMPLE: u32 = 64;
+
+impl ReconstructOptions {
+    /// Checks every range before any work (the error names the key): views, downsampling, the
+    /// object-channel count, the initial point count (with overflow-checked arithmetic) and the
+    /// training configuration.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(PipelineError::Invalid(format!("invalid option {m}")));
+        view_count(self.views)?;
+        if self.downsample == 0 || self.downsample > MAX_DOWNSAMPLE {
+            return bad(format!(
+                "`downsample` = {}: must be 1 to {MAX_DOWNSAMPLE}",
+                self.downsample
+            ));
+        }
+        let kmax = trand_core::MAX_NUM_OBJECTS;
+        if self.num_objects < 2 || self.num_objects > kmax {
+            return bad(format!(
+                "`num_objects` (--objects) = {}: must be 2 to {kmax} (background included)",
+                self.num_objects
+            ));
+        }
+        let points = self
+            .init
+            .num_per_face
+            .checked_mul(4)
+            .and_then(|f| f.checked_add(self.init.num_volume));
+        if points.is_none_or(|n| n > MAX_INIT_POINTS) {
+            return bad(format!(
+                "`init.num_volume` + 4 × `init.num_per_face` = {} + 4 × {}: at most {MAX_INIT_POINTS}",
+                self.init.num_volume, self.init.num_per_face
+            ));
+        }
+        if !(self.init.opacity > 0.0 && self.init.opacity < 1.0) {
+            return bad(format!(
+                "`init.opacity` = {}: must lie in (0, 1)",
+                self.init.opacity
+            ));
+        }
+        if !self.init.grey.is_finite() {
+            return bad(format!("`init.grey` = {}: not finite", self.init.grey));
+        }
+        self.train.validate()?;
+        Ok(())
     }
 }
 
@@ -293,6 +345,8 @@ pub fn object_filter(s: &Surfels) -> Vec<bool> {
 
 /// Runs the t = 0 reconstruction. `on_step` sees every iteration; setting `cancel` stops after the
 /// current iteration with [`PipelineError::Interrupted`] (the caller keeps its last checkpoint).
+/// `start` continues from given surfels at an iteration with a fresh optimiser; for an exact resume
+/// use [`reconstruct_from`].
 pub fn reconstruct(
     seq: &Sequence,
     opts: &ReconstructOptions,
@@ -300,7 +354,136 @@ pub fn reconstruct(
     on_step: &mut dyn FnMut(&StepReport, &Surfels),
     cancel: &AtomicBool,
 ) -> Result<Reconstruction> {
-    opts.train.validate()?;
+    let start = match start {
+        Some((s, it)) => Start::Surfels(s, it),
+        None => Start::Init,
+    };
+    reconstruct_from(
+        seq,
+        opts,
+        start,
+        &mut |r, snap| on_step(r, snap.surfels),
+        cancel,
+    )
+}
+
+/// Where [`reconstruct_from`] starts.
+pub enum Start {
+    /// From the initialisation ([`InitMode`]).
+    Init,
+    /// From these surfels after this iteration, with a fresh optimiser and sampler.
+    Surfels(Surfels, u32),
+    /// Exactly where a checkpoint left off: refused unless it was made from the same training views
+    /// and options.
+    Resume(Box<Checkpoint>),
+}
+
+/// A fingerprint of the training views as trained on (names, cameras, target images and labels):
+/// FNV-1a over their bytes, so a checkpoint made from another sequence, other views or another
+/// downsampling is recognised even where the cameras coincide.
+pub fn training_fingerprint(views: &[TrainView]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for v in views {
+        eat(v.name.as_bytes());
+        let c = &v.camera;
+        let k = &c.intrinsics;
+        for x in [k.fx, k.fy, k.cx, k.cy]
+            .iter()
+            .chain(c.r_w2c.iter().flatten())
+            .chain(&c.t_w2c)
+        {
+            eat(&x.to_le_bytes());
+        }
+        eat(&(v.width as u64).to_le_bytes());
+        eat(&(v.height as u64).to_le_bytes());
+        for x in v.rgb.iter().chain(&v.mask) {
+            eat(&x.to_le_bytes());
+        }
+        eat(&v.labels);
+        for id in &v.ids {
+            eat(&id.to_le_bytes());
+        }
+    }
+    format!("{h:016x}")
+}
+
+/// Checks that a checkpoint belongs to this run and fits its shapes.
+fn check_resume(
+    c: &Checkpoint,
+    fingerprint: &str,
+    options: &str,
+    opts: &ReconstructOptions,
+    num_views: usize,
+    last: u32,
+) -> Result<()> {
+    let bad = |m: String| Err(PipelineError::Invalid(format!("checkpoint refused: {m}")));
+    if c.fingerprint != fingerprint {
+        return bad(format!(
+            "it was made from other training views (fingerprint {} ≠ {fingerprint}: another sequence, view count or downsampling)",
+            c.fingerprint
+        ));
+    }
+    if c.options != options {
+        let diff = c
+            .options
+            .lines()
+            .zip(options.lines())
+            .find(|(a, b)| a != b)
+            .map_or_else(
+                || "a key is missing on one side".to_string(),
+                |(a, b)| format!("checkpoint `{a}`, this run `{b}`"),
+            );
+        return bad(format!(
+            "it was made with other options ({diff}); resume with the same options"
+        ));
+    }
+    if c.iteration < opts.train.start_iteration || c.iteration > last {
+        return bad(format!(
+            "its iteration {} is outside this run's {}..{last}",
+            c.iteration, opts.train.start_iteration
+        ));
+    }
+    let s = &c.surfels;
+    if (s.sh_degree, s.num_objects) != (opts.train.sh_degree, opts.num_objects) {
+        return bad(format!(
+            "its surfels have SH degree {} and {} object channels, the run {} and {}",
+            s.sh_degree, s.num_objects, opts.train.sh_degree, opts.num_objects
+        ));
+    }
+    let mut seen = vec![false; num_views];
+    for &v in &c.stack {
+        if v >= num_views || std::mem::replace(&mut seen[v], true) {
+            return bad(format!(
+                "its view stack {:?} does not fit {num_views} views",
+                c.stack
+            ));
+        }
+    }
+    for m in [&c.adam.m, &c.adam.v] {
+        m.validate().map_err(|e| {
+            PipelineError::Invalid(format!("checkpoint refused: Adam moments: {e}"))
+        })?;
+    }
+    Ok(())
+}
+
+/// [`reconstruct`] from any [`Start`]; `on_step` sees the whole loop state after every iteration
+/// (write it with [`Snapshot::write`] to checkpoint). A run resumed from a checkpoint of iteration
+/// `i` gives the same bits as the uninterrupted run.
+pub fn reconstruct_from(
+    seq: &Sequence,
+    opts: &ReconstructOptions,
+    start: Start,
+    on_step: &mut dyn FnMut(&StepReport, &Snapshot<'_>),
+    cancel: &AtomicBool,
+) -> Result<Reconstruction> {
+    opts.validate()?;
     let t0 = Instant::now();
     let (views, channels) = train_views(seq, opts)?;
     let (openings, vessel_tops) = find_openings(&views, opts)?;
@@ -308,26 +491,62 @@ pub fn reconstruct(
     if opts.method != Method::Trand {
         cfg.object_loss.active = Activation::Never;
     }
-    let (surfels, first) = match start {
-        Some((s, it)) => (s, it + 1),
-        None => (initial_surfels(&views, opts)?, cfg.start_iteration + 1),
+    let fingerprint = training_fingerprint(&views);
+    let options = toml::to_string(opts)
+        .map_err(|e| PipelineError::Invalid(format!("serialising the options: {e}")))?;
+    let last = cfg.start_iteration + cfg.iterations;
+    let (surfels, first, resume) = match start {
+        Start::Init => (
+            initial_surfels(&views, opts)?,
+            cfg.start_iteration + 1,
+            None,
+        ),
+        Start::Surfels(s, it) => (s, it + 1, None),
+        Start::Resume(c) => {
+            check_resume(&c, &fingerprint, &options, opts, views.len(), last)?;
+            let c = *c;
+            (
+                c.surfels,
+                c.iteration + 1,
+                Some((c.adam, c.stats, c.rng, c.stack, c.curve, c.initial_surfels)),
+            )
+        }
     };
-    let initial = surfels.len();
     let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let preprocess_s = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();
-    let last = cfg.start_iteration + cfg.iterations;
+    let mut initial = surfels.len();
     let mut trainer = Trainer::new(surfels, cfg, &views, extent, opts.method.supervision());
-    carve(&mut trainer, &openings);
     let mut curve = Vec::new();
+    match resume {
+        Some((adam, stats, rng, stack, c, init)) => {
+            trainer.restore(adam, stats, rng, stack);
+            curve = c;
+            initial = init;
+        }
+        None => carve(&mut trainer, &openings),
+    }
     for it in first..=last {
         let rep = trainer.step(it, it == last)?;
         if rep.densified {
             carve(&mut trainer, &openings);
         }
         curve.push((it, rep.loss));
-        on_step(&rep, &trainer.surfels);
+        let (rng, stack) = trainer.sampler();
+        let snap = Snapshot {
+            iteration: it,
+            surfels: &trainer.surfels,
+            adam: &trainer.adam,
+            stats: &trainer.stats,
+            rng,
+            stack,
+            curve: &curve,
+            initial_surfels: initial,
+            fingerprint: &fingerprint,
+            options: &options,
+        };
+        on_step(&rep, &snap);
         if cancel.load(Ordering::SeqCst) && it < last {
             return Err(PipelineError::Interrupted(it));
         }

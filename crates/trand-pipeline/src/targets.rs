@@ -82,6 +82,37 @@ pub fn channel_map(object_ids: &[u16], num_objects: usize) -> Result<Vec<(u16, u
         .collect())
 }
 
+/// Checks an `(object id, channel)` list read from a run folder against `num_objects` channels:
+/// what [`channel_map`] gives — at least one object, ids above 0 and channels in `1..num_objects`,
+/// each id and each channel once. The reason names the offending entry.
+pub fn check_channels(
+    channels: &[(u16, usize)],
+    num_objects: usize,
+) -> std::result::Result<(), String> {
+    if channels.is_empty() {
+        return Err("no objects (an object-aware run has at least one)".into());
+    }
+    for (i, &(id, c)) in channels.iter().enumerate() {
+        if id == 0 {
+            return Err(format!("entry {i}: object id 0 is the background"));
+        }
+        if c == 0 || c >= num_objects {
+            return Err(format!(
+                "entry {i}: channel {c} of object {id} is outside 1..{num_objects} (0 is the background)"
+            ));
+        }
+        if let Some(j) = channels[..i].iter().position(|x| x.0 == id) {
+            return Err(format!("entries {j} and {i}: object {id} listed twice"));
+        }
+        if let Some(j) = channels[..i].iter().position(|x| x.1 == c) {
+            return Err(format!(
+                "entries {j} and {i}: channel {c} given to two objects"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Builds the targets of one view.
 pub fn build(
     view: &View,
@@ -249,6 +280,21 @@ mod tests {
         assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
         assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
+    }
+
+    #[test]
+    fn object_channels_out_of_range_duplicated_or_empty_are_refused() {
+        assert!(check_channels(&[(3, 1), (7, 2)], 15).is_ok());
+        for bad in [
+            vec![],
+            vec![(3, 15)],
+            vec![(3, 0)],
+            vec![(0, 1)],
+            vec![(3, 1), (3, 2)],
+            vec![(3, 1), (4, 1)],
+        ] {
+            assert!(check_channels(&bad, 15).is_err(), "{bad:?} accepted");
+        }
     }
 
     #[test]

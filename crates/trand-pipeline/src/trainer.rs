@@ -92,6 +92,21 @@ impl<'a> Trainer<'a> {
         }
     }
 
+    /// The view sampler's state: the random stream and the views left in the current epoch.
+    pub fn sampler(&self) -> (&Pcg64, &[usize]) {
+        (&self.rng, &self.stack)
+    }
+
+    /// Restores the optimiser, the densification statistics and the view sampler of a checkpoint,
+    /// so that the next [`Trainer::step`] is the one an uninterrupted run would take. The caller
+    /// has checked the shapes ([`crate::checkpoint`]).
+    pub fn restore(&mut self, adam: Adam, stats: DensifyStats, rng: Pcg64, stack: Vec<usize>) {
+        self.adam = adam;
+        self.stats = stats;
+        self.rng = rng;
+        self.stack = stack;
+    }
+
     fn next_view(&mut self) -> usize {
         if self.stack.is_empty() {
             self.stack = (0..self.views.len()).collect();

@@ -76,6 +76,48 @@ pub struct UpdateOptions {
     pub downsample: Option<u32>,
 }
 
+impl UpdateOptions {
+    /// Checks the ranges of the options read from a file (the error names the key).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(PipelineError::Invalid(format!("invalid update option {m}")));
+        self.train.validate()?;
+        if self.downsample == Some(0) || self.downsample.is_some_and(|d| d > 64) {
+            return bad(format!(
+                "`downsample` = {:?}: must be 1 to 64",
+                self.downsample
+            ));
+        }
+        let side = trand_core::camera::MAX_IMAGE_SIDE;
+        for (key, v) in [
+            ("virtual_width", self.virtual_width),
+            ("virtual_height", self.virtual_height),
+        ] {
+            if v == 0 || v > side {
+                return bad(format!("`{key}` = {v}: must be 1 to {side}"));
+            }
+        }
+        if !(self.virtual_focal.is_finite() && self.virtual_focal > 0.0) {
+            return bad(format!(
+                "`virtual_focal` = {}: must be positive",
+                self.virtual_focal
+            ));
+        }
+        if self.ring_azimuths > 360 || self.ring_elevations_deg.len() > 90 {
+            return bad("`ring_azimuths` above 360 or more than 90 `ring_elevations_deg`".into());
+        }
+        if self.ring_elevations_deg.iter().any(|e| !e.is_finite()) {
+            return bad("`ring_elevations_deg`: not finite".into());
+        }
+        if !self.centroid_weight.is_finite() || self.centroid_weight < 0.0 {
+            return bad(format!(
+                "`centroid_weight` = {}: must be ≥ 0",
+                self.centroid_weight
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Scale of the t = 0 scene, carried into the update.
 #[derive(Clone, Copy, Debug)]
 pub struct SceneScale {
@@ -178,6 +220,11 @@ pub fn update(
     };
     let t0 = Instant::now();
     let object_aware = supervision == Supervision::ObjectAware;
+    opts.validate()?;
+    if object_aware {
+        targets::check_channels(channels, surfels.num_objects)
+            .map_err(|r| PipelineError::Invalid(format!("object channels: {r}")))?;
+    }
     let (matches, identity) = if object_aware {
         detect(
             &surfels,

@@ -20,7 +20,7 @@ use crate::simd::{backward_tile, raster_tile};
 const PREPROCESS_CHUNK: usize = 512;
 
 /// The largest number of object channels the kernels support (fixed-size stack buffers).
-pub const MAX_OBJECTS: usize = 64;
+pub const MAX_OBJECTS: usize = trand_core::MAX_NUM_OBJECTS;
 
 /// Which optional maps to render. RGB and the geometric maps (alpha, depth, median, normal,
 /// distortion) are always produced; the mask colour and the K-channel object map cost extra work per

@@ -9,6 +9,8 @@ pub enum SynthError {
     InvalidConfig { field: &'static str, reason: String },
     #[error("output folder {path} exists and is not empty (use --force to replace it)")]
     OutputNotEmpty { path: PathBuf },
+    #[error(transparent)]
+    Output(#[from] trand_io::IoError),
     #[error("output path {path} exists and is not a folder")]
     OutputNotADirectory { path: PathBuf },
     #[error("cannot create the output next to {path} (is the parent folder writable?)")]

@@ -54,6 +54,7 @@ use rand::SeedableRng;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use trand_io::output;
 
 /// Objects per scene: at least the supporting pair, at most what fits the placement disc.
 pub const MIN_OBJECTS: u32 = 2;
@@ -252,33 +253,49 @@ pub struct Summary {
 }
 
 /// Generates one sequence into `config.out` (see the crate docs).
+///
+/// The output is checked before any work: it must not be the current folder or one of its
+/// ancestors, and an existing non-empty folder is replaced only with [`ExistingOutput::Replace`]
+/// and only when trand wrote it (its marker file, [`trand_io::output::MARKER`]). The sequence is
+/// built in a hidden sibling folder and swapped in at the end; the old folder is removed only
+/// after the new one is in place.
 pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
     config.validate()?;
-    let target = config.out.clone();
-    if target.exists() {
-        if !target.is_dir() {
-            return Err(SynthError::OutputNotADirectory { path: target });
+    let target = output::resolve_target(&config.out)?;
+    if output::occupied(&target) {
+        let meta = target.symlink_metadata().map_err(|source| SynthError::Io {
+            path: config.out.clone(),
+            source,
+        })?;
+        if !meta.is_dir() {
+            return Err(SynthError::OutputNotADirectory {
+                path: config.out.clone(),
+            });
         }
         let non_empty = std::fs::read_dir(&target)
             .map_err(|source| SynthError::Io {
-                path: target.clone(),
+                path: config.out.clone(),
                 source,
             })?
             .next()
             .is_some();
-        if non_empty && config.existing == ExistingOutput::Refuse {
-            return Err(SynthError::OutputNotEmpty { path: target });
+        if non_empty {
+            if config.existing == ExistingOutput::Refuse {
+                return Err(SynthError::OutputNotEmpty {
+                    path: config.out.clone(),
+                });
+            }
+            output::check_replaceable(&target)?;
         }
     }
     let name = target
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "sequence".into());
-    let parent = target
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let tmp = parent.join(format!(".{name}.synth-tmp-{}", std::process::id()));
+        .unwrap_or_default();
+    let parent = target.parent().unwrap_or(Path::new("/"));
+    output::clean_stale_temps(parent, &format!(".{name}.synth-tmp-"));
+    output::clean_stale_temps(parent, &format!(".{name}.synth-old-"));
+    let tmp = output::temp_sibling(&target, "synth-tmp");
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|source| SynthError::Io {
             path: tmp.clone(),
@@ -286,28 +303,41 @@ pub fn generate(config: &SynthConfig) -> Result<Summary, SynthError> {
         })?;
     }
     std::fs::create_dir_all(&tmp).map_err(|source| SynthError::OutputUnwritable {
-        path: target.clone(),
+        path: config.out.clone(),
         source,
     })?;
-    let result = generate_into(config, &tmp);
+    let result = output::write_marker(&tmp, output::OutputKind::Sequence)
+        .map_err(SynthError::from)
+        .and_then(|()| generate_into(config, &tmp));
     let finish = result.and_then(|mut summary| {
-        if target.exists() {
-            std::fs::remove_dir_all(&target).map_err(|source| SynthError::Io {
-                path: target.clone(),
-                source,
-            })?;
-        }
-        std::fs::rename(&tmp, &target).map_err(|source| SynthError::Io {
-            path: target.clone(),
-            source,
-        })?;
-        summary.out = target.clone();
+        swap_into_place(&tmp, &target, &config.out)?;
+        summary.out = config.out.clone();
         Ok(summary)
     });
     if finish.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
     }
     finish
+}
+
+/// Renames `tmp` to `target`; an existing `target` (already checked replaceable) is first renamed
+/// aside and removed only once the new folder is in place.
+fn swap_into_place(tmp: &Path, target: &Path, shown: &Path) -> Result<(), SynthError> {
+    let io = |source| SynthError::Io {
+        path: shown.into(),
+        source,
+    };
+    if !output::occupied(target) {
+        return std::fs::rename(tmp, target).map_err(io);
+    }
+    let old = output::temp_sibling(target, "synth-old");
+    std::fs::rename(target, &old).map_err(io)?;
+    if let Err(e) = std::fs::rename(tmp, target) {
+        let _ = std::fs::rename(&old, target);
+        return Err(io(e));
+    }
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
 }
 
 /// How the remaining objects are simulated at t = 1.

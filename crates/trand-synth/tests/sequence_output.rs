@@ -231,7 +231,7 @@ fn output_layout_matches_the_reference_blender_sequence() {
         std::fs::read_dir(p)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .filter(|n| n != "render_stats.json")
+            .filter(|n| n != "render_stats.json" && n != trand_io::output::MARKER)
             .collect()
     };
     assert_eq!(names(&out), names(&reference), "top-level entries");
@@ -396,7 +396,7 @@ fn bad_settings_and_occupied_outputs_fail_with_a_named_reason_and_leave_nothing(
         generate(&tiny(1, &file.join("seq"))),
         Err(SynthError::OutputUnwritable { .. })
     ));
-    // Non-empty output: refused without Replace, replaced with it.
+    // Non-empty output: refused without Replace; with it, replaced only if trand wrote it.
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("keep.txt"), b"mine").unwrap();
     assert!(matches!(
@@ -406,13 +406,22 @@ fn bad_settings_and_occupied_outputs_fail_with_a_named_reason_and_leave_nothing(
     assert!(out.join("keep.txt").exists());
     let mut c = tiny(1, &out);
     c.existing = ExistingOutput::Replace;
+    assert!(matches!(generate(&c), Err(SynthError::Output(_))));
+    assert!(
+        out.join("keep.txt").exists(),
+        "a folder trand did not write was touched"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+    generate(&tiny(1, &out)).unwrap();
+    assert!(out.join(trand_io::output::MARKER).is_file());
+    std::fs::write(out.join("extra.txt"), b"from an earlier run").unwrap();
     generate(&c).unwrap();
-    assert!(!out.join("keep.txt").exists() && out.join("sequence.json").exists());
+    assert!(!out.join("extra.txt").exists() && out.join("sequence.json").exists());
     // No temporary folders are left next to the target.
     let leftovers: Vec<_> = std::fs::read_dir(&dir)
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n.contains("synth-tmp"))
+        .filter(|n| n.contains("synth-tmp") || n.contains("synth-old"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
     let _ = std::fs::remove_dir_all(&dir);

@@ -12,6 +12,9 @@ use trand_core::surfels::ParamGroup;
 use crate::losses::object::ObjectLossParams;
 use crate::optim::{AdamParams, GroupLr, LrSchedule, group_index};
 
+/// More iterations than any run needs (the paper uses 1000); larger values are taken as a typo.
+pub const MAX_ITERATIONS: u32 = 10_000_000;
+
 /// Why a configuration cannot be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -419,6 +422,29 @@ impl TrainConfig {
         {
             return bad("object loss levels need ≥ 2 centres and ≥ 1 neighbour".into());
         }
+        let AdamParams { beta1, beta2, eps } = self.adam;
+        if !(0.0..1.0).contains(&beta1) || !(0.0..1.0).contains(&beta2) {
+            return bad(format!(
+                "adam.beta1 = {beta1}, adam.beta2 = {beta2}: each must lie in [0, 1)"
+            ));
+        }
+        if !(eps.is_finite() && eps > 0.0) {
+            return bad(format!("adam.eps = {eps}: must be positive"));
+        }
+        if !(self.near.is_finite() && self.near > 0.0) {
+            return bad(format!("near = {}: must be positive", self.near));
+        }
+        if self.background.iter().any(|v| !v.is_finite()) {
+            return bad(format!("background = {:?}: not finite", self.background));
+        }
+        if self.iterations > MAX_ITERATIONS
+            || self.start_iteration.checked_add(self.iterations).is_none()
+        {
+            return bad(format!(
+                "iterations = {} (from start_iteration {}): at most {MAX_ITERATIONS}",
+                self.iterations, self.start_iteration
+            ));
+        }
         for g in ParamGroup::ALL {
             match *self.lr.schedule(g) {
                 LrSchedule::Constant(lr) if lr.is_finite() && lr >= 0.0 => {}
@@ -435,6 +461,37 @@ impl TrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn adam_beta1_at_or_above_one_and_eps_not_positive_are_refused() {
+        assert!(TrainConfig::default().validate().is_ok());
+        assert!(TrainConfig::t1().validate().is_ok());
+        for (b1, b2, eps) in [
+            (1.5, 0.999, 1e-15),
+            (1.0, 0.999, 1e-15),
+            (0.9, 1.0, 1e-15),
+            (0.9, 0.999, 0.0),
+            (0.9, 0.999, -1.0),
+            (f64::NAN, 0.999, 1e-15),
+        ] {
+            let mut c = TrainConfig::default();
+            c.adam = AdamParams {
+                beta1: b1,
+                beta2: b2,
+                eps,
+            };
+            assert!(
+                c.validate().is_err(),
+                "beta1 {b1}, beta2 {b2}, eps {eps} accepted"
+            );
+        }
+        let mut c = TrainConfig::default();
+        c.near = 0.0;
+        assert!(c.validate().is_err());
+        let mut c = TrainConfig::default();
+        c.start_iteration = u32::MAX;
+        assert!(c.validate().is_err());
+    }
 
     #[test]
     fn default_is_tran_d_t0() {

@@ -1,19 +1,27 @@
 //! `trand reconstruct`: the t = 0 object-aware 2DGS reconstruction of a sequence.
 //!
-//! Progress bar with loss and surfel count. A checkpoint (`OUT.checkpoint/`: surfels PLY and the
-//! iteration) is written every `--checkpoint-every` iterations and on Ctrl-C; `--resume` continues from
-//! it (Adam moments restart from zero). The run folder appears only when the run is complete.
+//! Progress bar with loss and surfel count. A checkpoint (`OUT.checkpoint/checkpoint.bin`, the whole
+//! loop state: see `trand_pipeline::checkpoint`) is written every `--checkpoint-every` iterations, on
+//! Ctrl-C and after the last iteration; `--resume` continues from it exactly (same bits as an
+//! uninterrupted run) and refuses a checkpoint of other training views or options. A failed
+//! checkpoint write is reported at once.
+//!
+//! The output location and the options are checked before any work. Ctrl-C stops every phase: while
+//! training it checkpoints and stops after the current iteration; while writing the run folder it
+//! stops once the folder is complete; in any other phase at once (nothing is half-written then; a
+//! second Ctrl-C always stops at once). The run folder appears only when the run is complete.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, Sequence, read_sequence_with};
-use trand_pipeline::reconstruct::OpeningPrior;
-use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, reconstruct};
+use trand_pipeline::checkpoint::Checkpoint;
+use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
+use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -122,6 +130,10 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     if let Some(p) = a.openings {
         o.openings = p;
     }
+    o.validate().map_err(|e| match &a.config {
+        Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
+        None => e.into(),
+    })?;
     Ok(o)
 }
 
@@ -131,48 +143,56 @@ fn checkpoint_dir(out: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
-fn write_checkpoint(
-    dir: &Path,
-    surfels: &trand_core::Surfels,
-    iteration: u32,
-) -> anyhow::Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    trand_io::write_surfels_ply(&dir.join("surfels.ply"), surfels)?;
-    let j = serde_json::json!({ "iteration": iteration });
-    trand_io::write_atomic(&dir.join("checkpoint.json"), j.to_string().as_bytes())?;
-    Ok(())
+/// The checkpoint file inside `checkpoint_dir`.
+const CHECKPOINT_FILE: &str = "checkpoint.bin";
+
+/// What the process is doing, for the Ctrl-C handler.
+#[derive(Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+enum Phase {
+    /// Reading, preparing, rendering, evaluating: nothing half-written, so Ctrl-C exits at once.
+    Stoppable = 0,
+    /// Training: Ctrl-C checkpoints and stops after the current iteration.
+    Training = 1,
+    /// Writing the run folder: Ctrl-C stops once it is complete.
+    Writing = 2,
+}
+
+/// Installs the Ctrl-C handler: sets `cancel`, and exits at once (status 130) when the phase is
+/// [`Phase::Stoppable`] or on a second Ctrl-C.
+fn install_ctrlc(cancel: Arc<AtomicBool>, phase: Arc<AtomicU8>) {
+    let _ = ctrlc::set_handler(move || {
+        let again = cancel.swap(true, Ordering::SeqCst);
+        if again || phase.load(Ordering::SeqCst) == Phase::Stoppable as u8 {
+            eprintln!("\ninterrupted");
+            std::process::exit(130);
+        }
+    });
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let t_all = Instant::now();
-    if a.out.exists() {
-        bail!("{}: output folder already exists", a.out.display());
-    }
     let opts = options(&a)?;
+    trand_io::output::check_new_output(&a.out)?;
     let ckpt = checkpoint_dir(&a.out);
+    let ckpt_file = ckpt.join(CHECKPOINT_FILE);
     let start = if a.resume {
-        let j: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(ckpt.join("checkpoint.json"))
-                .with_context(|| format!("{}: no checkpoint to resume", ckpt.display()))?,
-        )
-        .with_context(|| format!("{}/checkpoint.json: malformed", ckpt.display()))?;
-        let it = j["iteration"]
-            .as_u64()
-            .with_context(|| format!("{}/checkpoint.json: field `iteration`", ckpt.display()))?
-            as u32;
-        let s = trand_io::read_surfels_ply(&ckpt.join("surfels.ply"))?;
-        eprintln!("resuming from iteration {it} ({} surfels)", s.len());
-        Some((s, it))
+        let c = Checkpoint::read(&ckpt_file)
+            .with_context(|| format!("--resume: no usable checkpoint in {}", ckpt.display()))?;
+        eprintln!(
+            "resuming after iteration {} ({} surfels)",
+            c.iteration,
+            c.surfels.len()
+        );
+        Start::Resume(Box::new(c))
     } else {
-        None
+        Start::Init
     };
+    let cancel = Arc::new(AtomicBool::new(false));
+    let phase = Arc::new(AtomicU8::new(Phase::Stoppable as u8));
+    install_ctrlc(cancel.clone(), phase.clone());
     let seq = read_sequence(&a.data, opts.num_objects)?;
 
-    let cancel = Arc::new(AtomicBool::new(false));
-    {
-        let c = cancel.clone();
-        let _ = ctrlc::set_handler(move || c.store(true, Ordering::SeqCst));
-    }
     let total = opts.train.iterations as u64;
     let pb = ProgressBar::new(total);
     pb.set_style(
@@ -183,8 +203,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .progress_chars("=> "),
     );
     let every = a.checkpoint_every.max(1);
-    let mut last_ckpt = Ok(());
-    let mut on_step = |r: &trand_pipeline::StepReport, s: &trand_core::Surfels| {
+    let last_it = opts.train.start_iteration + opts.train.iterations;
+    let mut last_ckpt: anyhow::Result<()> = Ok(());
+    let mut on_step = |r: &trand_pipeline::StepReport,
+                       snap: &trand_pipeline::checkpoint::Snapshot<'_>| {
+        phase.store(Phase::Training as u8, Ordering::SeqCst);
         pb.set_position((r.iteration - opts.train.start_iteration) as u64);
         pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
         if pb.is_hidden() && r.iteration.is_multiple_of(100) {
@@ -193,15 +216,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 r.iteration, r.loss, r.num_surfels
             );
         }
-        if r.iteration.is_multiple_of(every) || cancel.load(Ordering::SeqCst) {
-            last_ckpt = write_checkpoint(&ckpt, s, r.iteration);
+        if r.iteration.is_multiple_of(every)
+            || r.iteration == last_it
+            || cancel.load(Ordering::SeqCst)
+        {
+            last_ckpt = std::fs::create_dir_all(&ckpt)
+                .map_err(|e| trand_io::IoError::io(&ckpt, e))
+                .and_then(|()| snap.write(&ckpt_file))
+                .with_context(|| format!("writing the checkpoint of iteration {}", r.iteration));
+            if let Err(e) = &last_ckpt {
+                pb.println(format!("warning: {e:#}"));
+            }
         }
     };
-    let rec = match reconstruct(&seq, &opts, start, &mut on_step, &cancel) {
+    let result = reconstruct_from(&seq, &opts, start, &mut on_step, &cancel);
+    phase.store(Phase::Stoppable as u8, Ordering::SeqCst);
+    let rec = match result {
         Ok(r) => r,
         Err(PipelineError::Interrupted(it)) => {
             pb.abandon();
-            last_ckpt?;
+            last_ckpt
+                .with_context(|| format!("interrupted at iteration {it} without a checkpoint"))?;
             eprintln!(
                 "interrupted at iteration {it}; checkpoint in {} (continue with --resume)",
                 ckpt.display()
@@ -211,6 +246,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Err(e) => return Err(e).with_context(|| format!("reconstructing {}", a.data.display())),
     };
     pb.finish_and_clear();
+    if let Err(e) = &last_ckpt {
+        eprintln!("warning: the final checkpoint was not written ({e:#}); the run goes on");
+    }
+    if cancel.load(Ordering::SeqCst) {
+        eprintln!(
+            "interrupted after training; the trained state is in {} (--resume writes the run)",
+            ckpt.display()
+        );
+        std::process::exit(130);
+    }
 
     let t_render = Instant::now();
     let settings = trand_render::RenderSettings {
@@ -225,7 +270,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "state": "t0",
         "method": opts.method,
         "views": opts.views,
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()),
+        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
         "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
         "object_channels": rec.channels,
@@ -246,8 +291,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "trand_version": env!("CARGO_PKG_VERSION"),
     });
     let config = toml::to_string(&opts).context("serialising the configuration")?;
+    phase.store(Phase::Writing as u8, Ordering::SeqCst);
     trand_pipeline::outputs::write_run(&a.out, &run_json, &config, &rec.surfels, &renders)?;
+    phase.store(Phase::Stoppable as u8, Ordering::SeqCst);
     let _ = std::fs::remove_dir_all(&ckpt);
+    if cancel.load(Ordering::SeqCst) {
+        eprintln!("interrupted; the run {} is complete", a.out.display());
+        std::process::exit(130);
+    }
     println!(
         "reconstructed {} in {:.1} s (preprocess {:.1} s, optimise {:.1} s): {} object surfels -> {}",
         a.data.display(),

@@ -161,9 +161,7 @@ fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let t_all = Instant::now();
-    if a.out.exists() {
-        bail!("{}: output folder already exists", a.out.display());
-    }
+    trand_io::output::check_new_output(&a.out)?;
     let run_json_path = a.run.join("run.json");
     let run_json: serde_json::Value = serde_json::from_slice(
         &std::fs::read(&run_json_path)
@@ -183,10 +181,31 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .with_context(|| format!("reading {}", cfg_path.display()))?,
     )
     .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
+    ropts
+        .validate()
+        .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
     let channels: Vec<(u16, usize)> =
         serde_json::from_value(run_json["object_channels"].clone())
             .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
-    let surfels = trand_io::read_surfels_ply(&a.run.join("surfels.ply"))?;
+    let ply_path = a.run.join("surfels.ply");
+    let surfels = trand_io::read_surfels_ply(&ply_path)?;
+    surfels
+        .validate()
+        .with_context(|| format!("{}: unusable surfels", ply_path.display()))?;
+    if ropts.method.supervision() == trand_pipeline::Supervision::ObjectAware {
+        if surfels.num_objects != ropts.num_objects {
+            bail!(
+                "{}: {} object channels, but {} says num_objects = {}",
+                ply_path.display(),
+                surfels.num_objects,
+                cfg_path.display(),
+                ropts.num_objects
+            );
+        }
+        trand_pipeline::targets::check_channels(&channels, surfels.num_objects).map_err(|r| {
+            anyhow::anyhow!("{}: field `object_channels`: {r}", run_json_path.display())
+        })?;
+    }
 
     let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
     let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
@@ -207,6 +226,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .with_context(|| format!("{}: invalid configuration", p.display()))?,
         None => UpdateOptions::default(),
     };
+    if let Some(p) = &a.config {
+        opts.validate()
+            .with_context(|| format!("{}: invalid configuration", p.display()))?;
+    }
     opts.physics = a.physics.unwrap_or(opts.physics);
     opts.refine = a.refine.unwrap_or(opts.refine);
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
@@ -277,8 +300,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "state": "t1",
         "method": ropts.method,
         "views": ropts.views,
-        "t0_run": a.run.canonicalize().unwrap_or(a.run.clone()),
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()),
+        "t0_run": a.run.canonicalize().unwrap_or(a.run.clone()).to_string_lossy(),
+        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
         "sequence_fingerprint": fp,
         "new_image": view.name,
         "object_channels": channels,
