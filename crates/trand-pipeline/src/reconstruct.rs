@@ -19,6 +19,7 @@ use trand_io::{Sequence, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
+use crate::associate::{Association, Identity, associate};
 use crate::openings::{Opening, VesselTop};
 use crate::targets::{self, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
@@ -74,6 +75,8 @@ pub struct ReconstructOptions {
     pub init_mode: InitMode,
     pub init: InitConfig,
     pub openings: OpeningPrior,
+    /// Whether the training masks' instance ids name the same object in every view.
+    pub identity: Identity,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -88,6 +91,7 @@ impl Default for ReconstructOptions {
             init_mode: InitMode::VisualHull,
             init: InitConfig::default(),
             openings: OpeningPrior::Carve,
+            identity: Identity::Auto,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -111,6 +115,17 @@ pub struct Reconstruction {
     pub initial_surfels: usize,
     /// The opening prior's decision per object (empty when it is off).
     pub vessel_tops: Vec<VesselTop>,
+    /// How the training masks' ids were taken.
+    pub identity: IdentityReport,
+}
+
+/// The identity rule a reconstruction used, and the association when one was computed.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct IdentityReport {
+    pub requested: Identity,
+    /// `ids` or `overlap`: whether the masks' own ids were trained on.
+    pub used: Identity,
+    pub association: Option<Association>,
 }
 
 fn view_count(n: u32) -> Result<ViewCount> {
@@ -127,20 +142,44 @@ fn view_count(n: u32) -> Result<ViewCount> {
 /// `(object id, channel)` pairs.
 pub type Channels = Vec<(u16, usize)>;
 
-/// Builds the training views of t = 0.
+/// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
+/// [`Identity`]; with `Auto`, associated only when the ids disagree with the geometry).
 pub fn train_views(
     seq: &Sequence,
     opts: &ReconstructOptions,
-) -> Result<(Vec<TrainView>, Channels)> {
-    let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
+) -> Result<(Vec<TrainView>, Channels, IdentityReport)> {
+    let mut chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
     if chosen.is_empty() {
         return Err(PipelineError::Invalid(format!(
             "{}: no training views at t=0",
             seq.root.display()
         )));
     }
-    let channels = targets::channel_map(&seq.object_ids, opts.num_objects)?;
     let sup = opts.method.supervision();
+    let mut report = IdentityReport {
+        requested: opts.identity,
+        used: Identity::ObjectIds,
+        association: None,
+    };
+    let mut object_ids = seq.object_ids.clone();
+    if sup == Supervision::ObjectAware && opts.identity != Identity::ObjectIds {
+        let cams: Vec<_> = chosen.iter().map(|v| v.camera).collect();
+        let b = hull_box_for(&cams)?;
+        let (assoc, maps) = associate(
+            &chosen,
+            glam::DVec3::from_array(b.min),
+            glam::DVec3::from_array(b.max),
+        )?;
+        if opts.identity == Identity::Overlap || !assoc.consistent {
+            for (v, m) in chosen.iter_mut().zip(maps) {
+                v.instance = Some(m);
+            }
+            object_ids = assoc.objects.clone();
+            report.used = Identity::Overlap;
+        }
+        report.association = Some(assoc);
+    }
+    let channels = targets::channel_map(&object_ids, opts.num_objects)?;
     let views = chosen
         .iter()
         .map(|v| {
@@ -154,14 +193,19 @@ pub fn train_views(
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok((views, channels))
+    Ok((views, channels, report))
 }
 
 /// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
 /// glassware (half the box's half-width).
 fn hull_box(views: &[TrainView]) -> Result<SlabBox> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
-    let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
+    hull_box_for(&cams)
+}
+
+/// [`hull_box`] of the cameras `cams`.
+fn hull_box_for(cams: &[trand_core::Camera]) -> Result<SlabBox> {
+    let mut b = SlabBox::from_cameras(cams, 0.6, 0.2)?;
     b.max[2] = 0.5 * (b.max[0] - b.min[0]) * 0.5;
     Ok(b)
 }
@@ -291,7 +335,7 @@ pub fn reconstruct(
 ) -> Result<Reconstruction> {
     opts.train.validate()?;
     let t0 = Instant::now();
-    let (views, channels) = train_views(seq, opts)?;
+    let (views, channels, identity) = train_views(seq, opts)?;
     let (openings, vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {
@@ -338,5 +382,6 @@ pub fn reconstruct(
         curve,
         initial_surfels: initial,
         vessel_tops,
+        identity,
     })
 }
