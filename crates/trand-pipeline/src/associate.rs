@@ -14,7 +14,9 @@
 //!    coincide: their voxel IoU. Every view is tried as the reference; each other view's instances are
 //!    assigned to the reference's by the Hungarian method on `1 − IoU` (pairs below
 //!    [`MIN_IOU`] are not matched), and the reference with the largest total IoU is kept, so a view
-//!    that split, merged or missed objects does not name them.
+//!    that split, merged or missed objects does not name them. Instances still unmatched after step 3
+//!    are matched the same way among themselves, and where two views agree they found an object
+//!    the reference did not show ([`found_objects`]).
 //! 3. **Consensus.** Every voxel takes the object most of its views' matched instances name, and
 //!    each view's instances are matched again (Hungarian, voxel IoU) to the objects as the other
 //!    views name them (splatted into the view with a depth test), twice. An instance still unmatched
@@ -25,6 +27,12 @@
 //! 4. **Merges.** The consensus voxels are splatted into each view with a depth test. An instance
 //!    whose pixels show, for at least [`MERGE_SHARE`] of them, an object that no other instance of
 //!    the view stands for covers two objects: those pixels are given to that object.
+//!
+//! 5. **Misses.** An object with no instance in a view whose splatted silhouette there lies mostly
+//!    on the view's background ([`MISS_SHARE`], at least [`MIN_MISS_AREA`] of the image) was missed
+//!    by the segmenter: those pixels are given to it, an approximation (the hull of the other views
+//!    is a little wider than the object) that costs less than a view teaching that the object is
+//!    not there, which also carves it out of the visual-hull initialisation.
 //!
 //! Objects take the reference's ids; new ones their own id when free, else the smallest free id. When
 //! every confidently matched instance keeps its id, the ids were consistent ([`Identity::Auto`] then
@@ -53,6 +61,11 @@ pub const SPLIT_SHARE: f64 = 0.5;
 /// this share of its pixels or voxels, is that object (a small, mostly hidden view of it); the
 /// unmatched instances and the free objects are paired by the Hungarian method.
 pub const FREE_SHARE: f64 = 0.05;
+/// A view misses an object when the object has no instance there and at least this share of its
+/// splatted silhouette lies on the view's background ...
+pub const MISS_SHARE: f64 = 0.5;
+/// ... covering at least this share of the image (an object hidden behind others shows less).
+pub const MIN_MISS_AREA: f64 = 0.002;
 /// Share of an instance's pixels that must show another, otherwise unclaimed, object for a merge.
 pub const MERGE_SHARE: f64 = 0.35;
 
@@ -108,6 +121,8 @@ pub struct InstanceMatch {
 pub struct ViewAssociation {
     pub view: String,
     pub instances: Vec<InstanceMatch>,
+    /// Objects the view's mask missed, drawn in from the hull: `(object, pixels)`.
+    pub filled: Vec<(u16, usize)>,
 }
 
 /// The association of every training view.
@@ -125,11 +140,21 @@ pub struct Association {
     pub min_confidence: f64,
 }
 
+impl Association {
+    /// Whether the relabelled masks differ from the views' own: ids changed, or a missed object
+    /// was drawn in.
+    pub fn changes_masks(&self) -> bool {
+        !self.consistent || self.views.iter().any(|v| !v.filled.is_empty())
+    }
+}
+
 /// Kept voxels of the voting hull with the id each view shows there (0: background or unseen).
 struct Hull {
     centres: Vec<DVec3>,
     /// `labels[voxel · views + view]`.
     labels: Vec<u16>,
+    /// The view that shows background at the voxel, when one does (the hull tolerates one).
+    background: Vec<Option<u8>>,
     views: usize,
     voxel: f64,
 }
@@ -148,7 +173,7 @@ fn voting_hull(views: &[(&Camera, &trand_io::InstanceMap)], min: DVec3, max: DVe
     let n = |k: usize| (((max[k] - min[k]) / voxel).ceil() as usize).max(1);
     let (nx, ny, nz) = (n(0), n(1), n(2));
     let nv = views.len();
-    let columns: Vec<Vec<(DVec3, Vec<u16>)>> = (0..nx * ny)
+    let columns: Vec<Vec<(DVec3, Vec<u16>, Option<u8>)>> = (0..nx * ny)
         .into_par_iter()
         .map(|c| {
             let (ix, iy) = (c % nx, c / nx);
@@ -157,6 +182,7 @@ fn voting_hull(views: &[(&Camera, &trand_io::InstanceMap)], min: DVec3, max: DVe
                     let p = min + (DVec3::new(ix as f64, iy as f64, iz as f64) + 0.5) * voxel;
                     let mut labels = vec![0u16; nv];
                     let (mut seen, mut objects) = (0, 0);
+                    let mut background = None;
                     for (v, (cam, inst)) in views.iter().enumerate() {
                         let (w, h) = (inst.width as usize, inst.height as usize);
                         if let Some(id) = id_at(cam, &inst.data, w, h, p) {
@@ -164,11 +190,14 @@ fn voting_hull(views: &[(&Camera, &trand_io::InstanceMap)], min: DVec3, max: DVe
                             if id != 0 {
                                 objects += 1;
                                 labels[v] = id;
+                            } else {
+                                background = Some(v as u8);
                             }
                         }
                     }
                     let misses = if seen >= 3 { 1 } else { 0 };
-                    (seen >= 2 && objects >= 2 && seen - objects <= misses).then_some((p, labels))
+                    (seen >= 2 && objects >= 2 && seen - objects <= misses)
+                        .then_some((p, labels, background))
                 })
                 .collect()
         })
@@ -176,12 +205,14 @@ fn voting_hull(views: &[(&Camera, &trand_io::InstanceMap)], min: DVec3, max: DVe
     let mut hull = Hull {
         centres: Vec::new(),
         labels: Vec::new(),
+        background: Vec::new(),
         views: nv,
         voxel,
     };
-    for (p, l) in columns.into_iter().flatten() {
+    for (p, l, b) in columns.into_iter().flatten() {
         hull.centres.push(p);
         hull.labels.extend(l);
+        hull.background.push(b);
     }
     hull
 }
@@ -230,30 +261,44 @@ fn pair_iou(
         .collect()
 }
 
-/// Per view and instance: `(object index, confidence)` of the matches to reference `r`, and their total.
+/// Matches of the instances still unmatched in `map` to those of view `r`: per view and instance,
+/// `(instance of r, voxel IoU)`, and the total IoU over the other views.
+type Matches = Vec<Vec<Option<(usize, f64)>>>;
+
 fn match_to(
     hull: &Hull,
     ids: &[Vec<u16>],
     sizes: &[Vec<usize>],
+    map: &Matches,
     r: usize,
-) -> (Vec<Vec<Option<(usize, f64)>>>, f64) {
+) -> (Matches, f64) {
     let mut total = 0.0;
+    let free = |v: usize, k: usize| map[v][k].is_none();
     let out = (0..hull.views)
         .map(|v| {
-            if v == r {
-                return (0..ids[r].len()).map(|i| Some((i, 1.0))).collect();
-            }
             let mut m = vec![None; ids[v].len()];
-            if ids[r].is_empty() || ids[v].is_empty() {
+            if v == r || ids[r].is_empty() || ids[v].is_empty() {
                 return m;
             }
             let iou = pair_iou(hull, ids, sizes, r, v);
             let cost: Vec<Vec<f64>> = iou
                 .iter()
-                .map(|row| row.iter().map(|x| 1.0 - x).collect())
+                .enumerate()
+                .map(|(i, row)| {
+                    row.iter()
+                        .enumerate()
+                        .map(|(j, x)| {
+                            if free(r, i) && free(v, j) {
+                                1.0 - x
+                            } else {
+                                1.0
+                            }
+                        })
+                        .collect()
+                })
                 .collect();
             for (i, j) in hungarian(&cost).into_iter().enumerate() {
-                if let Some(j) = j.filter(|&j| iou[i][j] >= MIN_IOU) {
+                if let Some(j) = j.filter(|&j| free(r, i) && free(v, j) && iou[i][j] >= MIN_IOU) {
                     m[j] = Some((i, iou[i][j]));
                     total += iou[i][j];
                 }
@@ -264,16 +309,102 @@ fn match_to(
     (out, total)
 }
 
-/// Object index a strict majority (and at least two) of each voxel's matched labels name.
-fn consensus(
+/// Objects founded by reference views, then refined: the view whose unmatched instances the other
+/// views' unmatched instances match best names objects for those that are matched, every view is
+/// matched again ([`refine`]), and this repeats while two views agree on an object not yet named (an
+/// object the first reference did not show). Returns the matches, the names and the first reference.
+fn found_objects(
     hull: &Hull,
     ids: &[Vec<u16>],
-    map: &[Vec<Option<(usize, f64)>>],
-    objects: usize,
-) -> Vec<Option<usize>> {
+    sizes: &[Vec<usize>],
+    maps: &[(&Camera, &trand_io::InstanceMap)],
+) -> (Matches, Vec<u16>, usize) {
+    let mut map: Matches = ids.iter().map(|i| vec![None; i.len()]).collect();
+    let mut names: Vec<u16> = Vec::new();
+    let mut first = None;
+    let limit: usize = ids.iter().map(Vec::len).sum();
+    while names.len() < limit {
+        let (r, (m, total)) = (0..hull.views)
+            .map(|r| (r, match_to(hull, ids, sizes, &map, r)))
+            .fold(None::<(usize, (Matches, f64))>, |best, cur| match best {
+                Some(b) if b.1.1 >= cur.1.1 => Some(b),
+                _ => Some(cur),
+            })
+            .expect("at least one view");
+        let founders: Vec<usize> = (0..ids[r].len())
+            .filter(|&k| m.iter().flatten().flatten().any(|x| x.0 == k))
+            .collect();
+        // The first reference names all its instances; later ones those another view confirms.
+        let founders: Vec<usize> = if first.is_none() {
+            (0..ids[r].len()).collect()
+        } else {
+            founders
+        };
+        if founders.is_empty() || (first.is_some() && total <= 0.0) {
+            break;
+        }
+        let unmatched = |m: &Matches| m.iter().flatten().filter(|x| x.is_none()).count();
+        let before = (map.clone(), names.len(), unmatched(&map));
+        let base = names.len();
+        for &k in &founders {
+            let id = ids[r][k];
+            let name = if names.contains(&id) {
+                (1..=u16::MAX)
+                    .find(|i| !names.contains(i))
+                    .expect("fewer than 65535 objects")
+            } else {
+                id
+            };
+            names.push(name);
+        }
+        for &k in &founders {
+            map[r][k] = Some((
+                base + founders.iter().position(|&f| f == k).expect("founder"),
+                1.0,
+            ));
+        }
+        for (v, row) in m.iter().enumerate() {
+            for (j, x) in row.iter().enumerate() {
+                if let Some((k, iou)) = x.filter(|x| founders.contains(&x.0)) {
+                    map[v][j] = Some((
+                        base + founders.iter().position(|&f| f == k).expect("founder"),
+                        iou,
+                    ));
+                }
+            }
+        }
+        for _ in 0..REFINE_ROUNDS {
+            map = refine(hull, ids, maps, &map, names.len());
+        }
+        if first.is_some() && unmatched(&map) >= before.2 {
+            // The new objects explain nothing the views agree on: keep the previous matches.
+            map = before.0;
+            names.truncate(before.1);
+            break;
+        }
+        first.get_or_insert(r);
+    }
+    (map, names, first.unwrap_or(0))
+}
+
+/// Object index a strict majority (and at least two) of each voxel's matched labels name. A voxel
+/// one view sees as background is owned only when that view has no instance of the object (it
+/// missed it); otherwise it is phantom volume of the tolerant hull.
+fn consensus(hull: &Hull, ids: &[Vec<u16>], map: &Matches, objects: usize) -> Vec<Option<usize>> {
+    let claimed: Vec<Vec<bool>> = map
+        .iter()
+        .map(|m| {
+            let mut c = vec![false; objects];
+            for (g, _) in m.iter().flatten() {
+                c[*g] = true;
+            }
+            c
+        })
+        .collect();
     hull.labels
         .chunks(hull.views)
-        .map(|l| {
+        .zip(&hull.background)
+        .map(|(l, bg)| {
             let mut votes = vec![0u32; objects];
             for (v, &id) in l.iter().enumerate() {
                 if let Some((g, _)) = ids[v].binary_search(&id).ok().and_then(|k| map[v][k]) {
@@ -282,10 +413,14 @@ fn consensus(
             }
             let best = votes.iter().copied().max().unwrap_or(0);
             let total: u32 = votes.iter().sum();
-            // Phantom voxels of the hull (between objects, seen as different objects from different
-            // views) have no majority; left unowned they cannot hide an object behind them.
-            (best >= 2 && 2 * best > total)
-                .then(|| votes.iter().position(|&c| c == best).expect("max exists"))
+            // Phantom voxels between objects, seen as different objects from different views, have
+            // no majority; left unowned they cannot hide an object behind them.
+            let g = (best >= 2 && 2 * best > total)
+                .then(|| votes.iter().position(|&c| c == best).expect("max exists"))?;
+            match bg {
+                Some(v) if claimed[*v as usize][g] => None,
+                _ => Some(g),
+            }
         })
         .collect()
 }
@@ -485,22 +620,7 @@ pub fn associate(
     let hull = voting_hull(&maps, min, max);
     let ids: Vec<Vec<u16>> = maps.iter().map(|(_, m)| m.ids()).collect();
     let sizes = instance_sizes(&hull, &ids);
-    // The reference: the view whose instances the others match best.
-    let (r, mut map) = (0..views.len())
-        .map(|r| (r, match_to(&hull, &ids, &sizes, r)))
-        .fold(
-            None::<(usize, (Vec<Vec<Option<(usize, f64)>>>, f64))>,
-            |best, cur| match best {
-                Some(b) if b.1.1 >= cur.1.1 => Some(b),
-                _ => Some(cur),
-            },
-        )
-        .map(|(r, (m, _))| (r, m))
-        .expect("at least one view");
-    let mut names: Vec<u16> = ids[r].clone();
-    for _ in 0..REFINE_ROUNDS {
-        map = refine(&hull, &ids, &maps, &map, names.len());
-    }
+    let (mut map, mut names, r) = found_objects(&hull, &ids, &sizes, &maps);
     let mut roles: Vec<Vec<Role>> = map
         .iter()
         .map(|m| m.iter().map(|_| Role::Matched).collect())
@@ -640,12 +760,37 @@ pub fn associate(
                 confidence: map[v][k].map_or(0.0, |m| m.1),
             });
         }
+        // Objects the view shows (the others' hull projects onto its background) but has no
+        // instance of: a missed mask, drawn in from the hull so that the view does not teach that
+        // the object is absent.
+        let mut filled = Vec::new();
+        let now_claimed: Vec<usize> = instances
+            .iter()
+            .filter_map(|m| names.iter().position(|n| *n == m.object))
+            .collect();
+        for g in (0..names.len()).filter(|g| !now_claimed.contains(g)) {
+            let shown: Vec<usize> = (0..w * h).filter(|&p| seen[p] == Some(g)).collect();
+            let on_background: Vec<usize> = shown
+                .iter()
+                .copied()
+                .filter(|&p| inst.data[p] == 0)
+                .collect();
+            if on_background.len() as f64 >= MISS_SHARE * shown.len() as f64
+                && on_background.len() as f64 >= MIN_MISS_AREA * (w * h) as f64
+            {
+                for &p in &on_background {
+                    data[p] = names[g];
+                }
+                filled.push((names[g], on_background.len()));
+            }
+        }
         relabelled.push(
             trand_io::InstanceMap::from_vec(inst.width, inst.height, 1, data).expect("same size"),
         );
         out_views.push(ViewAssociation {
             view: views[v].name.clone(),
             instances,
+            filled,
         });
     }
     let consistent = out_views.iter().all(|v| ids_agree(v, &names));
@@ -666,3 +811,6 @@ pub fn associate(
         relabelled,
     ))
 }
+
+#[cfg(test)]
+mod tests;

@@ -263,6 +263,44 @@ mod tests {
         );
     }
 
+    /// Both objects stay where they stood, but the new mask numbers them the other way round: ids
+    /// that lie among the t = 0 objects' ids and contradict the rendered objects twice.
+    #[test]
+    fn auto_does_not_trust_swapped_ids_that_happen_to_be_object_ids() {
+        let a = cylinder(0.0, 0.0, 0);
+        let b = cylinder(0.12, 0.04, 1);
+        let mut s = a.clone();
+        s.append(&b);
+        let settings = RenderSettings::default();
+        let alpha = |s: &Surfels| render::<f32, _>(s, &camera(), &settings).unwrap().alpha;
+        let (ra, rb) = (alpha(&a), alpha(&b));
+        let data: Vec<u16> = ra
+            .iter()
+            .zip(&rb)
+            .map(|(&x, &y)| {
+                if x > 0.5 {
+                    2
+                } else if y > 0.5 {
+                    1
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let view = View {
+            name: "new".into(),
+            frame: 0,
+            camera: camera(),
+            rgb: None,
+            instance: Some(trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap()),
+            depth: None,
+        };
+        let (m, rule) =
+            detect(&s, &[(1, 0), (2, 1)], &view, &settings, 0.5, Identity::Auto).unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!((m[0].new_id, m[1].new_id), (Some(2), Some(1)), "{m:?}");
+    }
+
     #[test]
     fn forcing_object_ids_on_a_mask_with_unknown_ids_is_an_error_naming_the_id() {
         let (s, view) = fell_with_unknown_instance_id_5();

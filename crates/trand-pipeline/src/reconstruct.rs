@@ -170,7 +170,7 @@ pub fn train_views(
             glam::DVec3::from_array(b.min),
             glam::DVec3::from_array(b.max),
         )?;
-        if opts.identity == Identity::Overlap || !assoc.consistent {
+        if opts.identity == Identity::Overlap || assoc.changes_masks() {
             for (v, m) in chosen.iter_mut().zip(maps) {
                 v.instance = Some(m);
             }
