@@ -483,6 +483,69 @@ mod tests {
         }
     }
 
+    /// A two-frame BOP `train_0` with discs for objects 1 and 2 in each frame.
+    fn tiny_bop(root: &Path) {
+        let split = root.join("train_0");
+        std::fs::create_dir_all(split.join("mask_visib")).unwrap();
+        let cam = serde_json::json!({
+            "cam_K": [100.0, 0.0, 15.5, 0.0, 100.0, 15.5, 0.0, 0.0, 1.0],
+            "cam_R_w2c": [1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0],
+            "cam_t_w2c": [0.0, 0.0, 500.0], "depth_scale": 1.0, "width": 32, "height": 32
+        });
+        let cams = serde_json::json!({ "1": cam, "3": cam });
+        std::fs::write(split.join("scene_camera.json"), cams.to_string()).unwrap();
+        for f in [1u32, 3] {
+            for (o, cx) in [(1u16, 8.0), (2, 24.0)] {
+                let m = disc(32, 32, cx, 16.0, 5.0);
+                let path = split.join("mask_visib").join(format!("{f:06}_{o:06}.png"));
+                write_mask(&path, &m, 32, 32).unwrap();
+            }
+        }
+    }
+
+    #[test]
+    fn a_perturbed_copy_renames_drops_and_moves_what_its_report_says() {
+        let base = std::env::temp_dir().join(format!("trand-perturb-{}", std::process::id()));
+        let (src, dst) = (base.join("src"), base.join("dst"));
+        let _ = std::fs::remove_dir_all(&base);
+        tiny_bop(&src);
+        let p = Perturbation {
+            miss_frames: vec![3],
+            ..Perturbation::new(
+                vec![Imperfection::Ids, Imperfection::Miss, Imperfection::Pose],
+                5,
+            )
+        };
+        let report = perturb_bop(&src, &dst, &p).unwrap();
+        let (frame, missed) = report.missed.unwrap();
+        assert_eq!(frame, 3);
+        let written = masks(&dst.join("train_0")).unwrap();
+        assert_eq!(written[&1].len(), 2);
+        assert_eq!(written[&3].len(), 1);
+        // Each written mask is the disc of the object its report maps there.
+        for (f, files) in &written {
+            let perm = &report.ids[&format!("train_0/{f:06}")];
+            for (id, path) in files {
+                let (orig, _) = perm.iter().find(|(_, n)| *n == id).unwrap();
+                assert!(!(*f == 3 && *orig == missed));
+                let (m, _, _) = read_mask(path).unwrap();
+                let cx = if *orig == 1 { 8 } else { 24 };
+                assert!(m[16 * 32 + cx], "frame {f}: {id} should be object {orig}");
+            }
+        }
+        let cams: Value = serde_json::from_str(
+            &std::fs::read_to_string(dst.join("train_0/scene_camera.json")).unwrap(),
+        )
+        .unwrap();
+        assert_ne!(cams["1"]["cam_t_w2c"], serde_json::json!([0.0, 0.0, 500.0]));
+        assert!(dst.join("perturbation.json").is_file());
+        assert!(
+            perturb_bop(&src, &dst, &p).is_err(),
+            "an existing output is refused"
+        );
+        std::fs::remove_dir_all(&base).unwrap();
+    }
+
     #[test]
     fn pose_error_has_the_asked_angle_and_centre_shift() {
         let r = DMat3::from_quat(DQuat::from_rotation_x(2.0));
