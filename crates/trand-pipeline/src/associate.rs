@@ -168,12 +168,15 @@ fn id_at(cam: &Camera, ids: &[u16], w: usize, h: usize, p: DVec3) -> Option<u16>
     Some(ids[yi as usize * w + xi as usize])
 }
 
+/// A kept voxel: centre, the id each view shows, the view that shows background.
+type KeptVoxel = (DVec3, Vec<u16>, Option<u8>);
+
 fn voting_hull(views: &[(&Camera, &trand_io::InstanceMap)], min: DVec3, max: DVec3) -> Hull {
     let voxel = (max.x - min.x).max(max.y - min.y) / GRID as f64;
     let n = |k: usize| (((max[k] - min[k]) / voxel).ceil() as usize).max(1);
     let (nx, ny, nz) = (n(0), n(1), n(2));
     let nv = views.len();
-    let columns: Vec<Vec<(DVec3, Vec<u16>, Option<u8>)>> = (0..nx * ny)
+    let columns: Vec<Vec<KeptVoxel>> = (0..nx * ny)
         .into_par_iter()
         .map(|c| {
             let (ix, iy) = (c % nx, c / nx);
