@@ -8,7 +8,10 @@
 //! objects with the Hungarian method on the cost `1 − IoU + w·(centroid distance / image diagonal)`;
 //! objects left without an instance were removed. Overlap alone cannot tell which object went when one
 //! stood on another and fell off it after the removal (the fallen object overlaps the removed one's
-//! old place better than its own), which is why ids win when the mask has them.
+//! old place better than its own), which is why ids win when the mask has them. With `Auto`, ids that
+//! merely lie among the t = 0 ids are not trusted when two or more instances contradict the rendered
+//! objects (see [`contradicted`]); the CLI also takes overlap when the t = 0 run had to associate its
+//! training masks, since the same segmenter made the new mask.
 
 use trand_core::Surfels;
 use trand_eval::{hungarian, iou};
@@ -17,18 +20,7 @@ use trand_render::{Maps, RenderSettings, render};
 
 use crate::{PipelineError, Result};
 
-/// How the t = 0 objects are found among the new mask's instances.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Identity {
-    /// `ObjectIds` when every instance id of the new mask is a t = 0 object id, else `Overlap`.
-    Auto,
-    /// The new mask's ids are the t = 0 object ids (a tracker carried them over; BOP masks are named
-    /// by object id): an object whose id is absent was removed.
-    ObjectIds,
-    /// The ids are per image: match by overlap of the rendered t = 0 objects (IoU + centroid, Hungarian).
-    Overlap,
-}
+pub use crate::associate::Identity;
 
 /// One t = 0 object and what it matched in the new image.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -94,8 +86,10 @@ pub fn detect(
         .copied()
         .find(|i| !channels.iter().any(|c| c.0 == *i));
     let identity = match (identity, stranger) {
-        (Identity::Auto, None) => Identity::ObjectIds,
-        (Identity::Auto, Some(_)) => Identity::Overlap,
+        (Identity::Auto, None) if contradicted(channels, &new_ids, &ious) < MAX_CONTRADICTIONS => {
+            Identity::ObjectIds
+        }
+        (Identity::Auto, _) => Identity::Overlap,
         (Identity::ObjectIds, Some(id)) => {
             return Err(PipelineError::View {
                 view: view.name.clone(),
@@ -140,6 +134,31 @@ pub fn detect(
         hungarian(&cost)
     };
     Ok((matches(channels, &new_ids, &ious, &assign), identity))
+}
+
+/// IoU below which an instance does not show the t = 0 object its id names.
+const ID_MISS_IOU: f64 = 0.1;
+/// IoU above which an instance clearly shows another t = 0 object.
+const OTHER_HIT_IOU: f64 = 0.5;
+/// With `Auto`, this many contradicted ids make the mask's ids per-image ids. One contradiction is an
+/// object that fell where another stood (which ids tell and overlap cannot); two or more are ids
+/// that merely lie among the t = 0 objects' ids.
+const MAX_CONTRADICTIONS: usize = 2;
+
+/// Instances of the new mask whose id names a t = 0 object they do not overlap
+/// (IoU < [`ID_MISS_IOU`]) while they clearly show another one (IoU ≥ [`OTHER_HIT_IOU`]).
+fn contradicted(channels: &[(u16, usize)], new_ids: &[u16], ious: &[Vec<f64>]) -> usize {
+    new_ids
+        .iter()
+        .enumerate()
+        .filter(|&(c, id)| {
+            let Some(own) = channels.iter().position(|ch| ch.0 == *id) else {
+                return false;
+            };
+            ious[own][c] < ID_MISS_IOU
+                && (0..channels.len()).any(|r| r != own && ious[r][c] >= OTHER_HIT_IOU)
+        })
+        .count()
 }
 
 /// The matches of each t = 0 object (row of `ious`) given the new instance (column) assigned to it.
@@ -242,6 +261,44 @@ mod tests {
             (Some(2), None),
             "{by_overlap:?}"
         );
+    }
+
+    /// Both objects stay where they stood, but the new mask numbers them the other way round: ids
+    /// that lie among the t = 0 objects' ids and contradict the rendered objects twice.
+    #[test]
+    fn auto_does_not_trust_swapped_ids_that_happen_to_be_object_ids() {
+        let a = cylinder(0.0, 0.0, 0);
+        let b = cylinder(0.12, 0.04, 1);
+        let mut s = a.clone();
+        s.append(&b);
+        let settings = RenderSettings::default();
+        let alpha = |s: &Surfels| render::<f32, _>(s, &camera(), &settings).unwrap().alpha;
+        let (ra, rb) = (alpha(&a), alpha(&b));
+        let data: Vec<u16> = ra
+            .iter()
+            .zip(&rb)
+            .map(|(&x, &y)| {
+                if x > 0.5 {
+                    2
+                } else if y > 0.5 {
+                    1
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let view = View {
+            name: "new".into(),
+            frame: 0,
+            camera: camera(),
+            rgb: None,
+            instance: Some(trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap()),
+            depth: None,
+        };
+        let (m, rule) =
+            detect(&s, &[(1, 0), (2, 1)], &view, &settings, 0.5, Identity::Auto).unwrap();
+        assert_eq!(rule, Identity::Overlap);
+        assert_eq!((m[0].new_id, m[1].new_id), (Some(2), Some(1)), "{m:?}");
     }
 
     #[test]

@@ -1,6 +1,8 @@
 //! TRAN-D's stages end to end, on top of the rasterizer (`trand-render`), the losses and optimiser
 //! (`trand-train`) and the readers (`trand-io`):
 //!
+//! * [`associate`]: per-image instance ids made consistent across the t = 0 views by voting in a
+//!   voxel hull.
 //! * [`targets`]: per training view, the three images the surfels are fitted to — RGB with the
 //!   background blacked out, the colour-coded instance mask, and the K-channel one-hot object map.
 //! * [`trainer`]: one optimisation loop (render → losses → backward → Adam → densify), used at t = 0
@@ -12,6 +14,7 @@
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 
 pub mod checkpoint;
+pub mod associate;
 pub mod contact;
 pub mod detect;
 pub mod openings;

@@ -19,6 +19,7 @@ use trand_io::{Sequence, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
+use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::openings::{Opening, VesselTop};
 use crate::targets::{self, Supervision, TrainView};
@@ -75,6 +76,8 @@ pub struct ReconstructOptions {
     pub init_mode: InitMode,
     pub init: InitConfig,
     pub openings: OpeningPrior,
+    /// Whether the training masks' instance ids name the same object in every view.
+    pub identity: Identity,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -89,6 +92,7 @@ impl Default for ReconstructOptions {
             init_mode: InitMode::VisualHull,
             init: InitConfig::default(),
             openings: OpeningPrior::Carve,
+            identity: Identity::Auto,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -163,6 +167,17 @@ pub struct Reconstruction {
     pub initial_surfels: usize,
     /// The opening prior's decision per object (empty when it is off).
     pub vessel_tops: Vec<VesselTop>,
+    /// How the training masks' ids were taken.
+    pub identity: IdentityReport,
+}
+
+/// The identity rule a reconstruction used, and the association when one was computed.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct IdentityReport {
+    pub requested: Identity,
+    /// `ids` or `overlap`: whether the masks' own ids were trained on.
+    pub used: Identity,
+    pub association: Option<Association>,
 }
 
 fn view_count(n: u32) -> Result<ViewCount> {
@@ -179,20 +194,44 @@ fn view_count(n: u32) -> Result<ViewCount> {
 /// `(object id, channel)` pairs.
 pub type Channels = Vec<(u16, usize)>;
 
-/// Builds the training views of t = 0.
+/// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
+/// [`Identity`]; with `Auto`, associated only when the ids disagree with the geometry).
 pub fn train_views(
     seq: &Sequence,
     opts: &ReconstructOptions,
-) -> Result<(Vec<TrainView>, Channels)> {
-    let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
+) -> Result<(Vec<TrainView>, Channels, IdentityReport)> {
+    let mut chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
     if chosen.is_empty() {
         return Err(PipelineError::Invalid(format!(
             "{}: no training views at t=0",
             seq.root.display()
         )));
     }
-    let channels = targets::channel_map(&seq.object_ids, opts.num_objects)?;
     let sup = opts.method.supervision();
+    let mut report = IdentityReport {
+        requested: opts.identity,
+        used: Identity::ObjectIds,
+        association: None,
+    };
+    let mut object_ids = seq.object_ids.clone();
+    if sup == Supervision::ObjectAware && opts.identity != Identity::ObjectIds {
+        let cams: Vec<_> = chosen.iter().map(|v| v.camera).collect();
+        let b = hull_box_for(&cams)?;
+        let (assoc, maps) = associate(
+            &chosen,
+            glam::DVec3::from_array(b.min),
+            glam::DVec3::from_array(b.max),
+        )?;
+        if opts.identity == Identity::Overlap || assoc.changes_masks() {
+            for (v, m) in chosen.iter_mut().zip(maps) {
+                v.instance = Some(m);
+            }
+            object_ids = assoc.objects.clone();
+            report.used = Identity::Overlap;
+        }
+        report.association = Some(assoc);
+    }
+    let channels = targets::channel_map(&object_ids, opts.num_objects)?;
     let views = chosen
         .iter()
         .map(|v| {
@@ -206,7 +245,7 @@ pub fn train_views(
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok((views, channels))
+    Ok((views, channels, report))
 }
 
 /// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
@@ -218,7 +257,17 @@ pub fn hull_box(views: &[TrainView]) -> Result<SlabBox> {
 /// [`hull_box`] with its height `fraction` of the box's half-width.
 fn box_of_height(views: &[TrainView], fraction: f64) -> Result<SlabBox> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
-    let mut b = SlabBox::from_cameras(&cams, 0.6, 0.2)?;
+    box_of_height_for(&cams, fraction)
+}
+
+/// [`hull_box`] of the cameras `cams`.
+fn hull_box_for(cams: &[trand_core::Camera]) -> Result<SlabBox> {
+    box_of_height_for(cams, 0.5)
+}
+
+/// The box under the cameras' focus with its height `fraction` of its half-width.
+fn box_of_height_for(cams: &[trand_core::Camera], fraction: f64) -> Result<SlabBox> {
+    let mut b = SlabBox::from_cameras(cams, 0.6, 0.2)?;
     b.max[2] = fraction * (b.max[0] - b.min[0]) * 0.5;
     Ok(b)
 }
@@ -485,7 +534,7 @@ pub fn reconstruct_from(
 ) -> Result<Reconstruction> {
     opts.validate()?;
     let t0 = Instant::now();
-    let (views, channels) = train_views(seq, opts)?;
+    let (views, channels, identity) = train_views(seq, opts)?;
     let (openings, vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {
@@ -568,5 +617,6 @@ pub fn reconstruct_from(
         curve,
         initial_surfels: initial,
         vessel_tops,
+        identity,
     })
 }

@@ -34,6 +34,7 @@ pub mod error;
 pub mod layout;
 pub mod lean;
 pub mod material;
+pub mod perturb;
 pub mod physics;
 pub mod relation;
 pub mod scene;

@@ -19,6 +19,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, Sequence, read_sequence_with};
+use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
@@ -54,6 +55,11 @@ pub struct Args {
     /// bowls and wine glasses, so their inside is fitted instead of a lid) or off.
     #[arg(long, value_parser = parse_openings)]
     pub openings: Option<OpeningPrior>,
+    /// Instance ids of the training masks: auto (default: used as they are unless they disagree with
+    /// the geometry, then associated), ids (one id per object in every view, as a tracker gives) or
+    /// overlap (per-image ids, e.g. SAM or Mask R-CNN: associated across views by voxel votes).
+    #[arg(long, value_enum)]
+    pub identity: Option<Identity>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -129,6 +135,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(p) = a.openings {
         o.openings = p;
+    }
+    if let Some(i) = a.identity {
+        o.identity = i;
     }
     o.validate().map_err(|e| match &a.config {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
@@ -275,6 +284,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "train_views": rec.train_views,
         "object_channels": rec.channels,
         "vessel_tops": rec.vessel_tops,
+        "identity": rec.identity,
         "timings": {
             "preprocess_s": rec.preprocess_s,
             "optimise_s": rec.optimise_s,

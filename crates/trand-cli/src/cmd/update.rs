@@ -44,7 +44,7 @@ pub struct Args {
     /// How objects are found in the new mask: auto (default: by id when every id of the new mask is a
     /// t = 0 object id), ids (the mask's ids are the t = 0 object ids) or overlap (per-image ids,
     /// matched by overlap with the rendered t = 0 objects).
-    #[arg(long, value_parser = parse_identity)]
+    #[arg(long, value_enum)]
     pub identity: Option<Identity>,
     /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
     #[arg(long, value_parser = parse_depth)]
@@ -63,15 +63,6 @@ fn parse_stage(s: &str) -> Result<Stage, String> {
         "on" => Ok(Stage::On),
         "off" => Ok(Stage::Off),
         _ => Err(format!("`{s}`: expected on or off")),
-    }
-}
-
-fn parse_identity(s: &str) -> Result<Identity, String> {
-    match s {
-        "auto" => Ok(Identity::Auto),
-        "ids" => Ok(Identity::ObjectIds),
-        "overlap" => Ok(Identity::Overlap),
-        _ => Err(format!("`{s}`: expected auto, ids or overlap")),
     }
 }
 
@@ -234,6 +225,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     opts.refine = a.refine.unwrap_or(opts.refine);
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
     opts.identity = a.identity.unwrap_or(opts.identity);
+    // A segmenter whose t = 0 ids needed association numbers the new image on its own as well.
+    let t0_associated = run_json["identity"]["used"].as_str() == Some("overlap");
+    if opts.identity == Identity::Auto && t0_associated {
+        opts.identity = Identity::Overlap;
+    }
     if a.removed.is_some() {
         opts.removed = a.removed.clone();
     }
@@ -309,6 +305,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "removed": up.removed,
         "removed_by": if opts.removed.is_some() { "user" } else { "detection" },
         "identity": up.identity,
+        "identity_from_t0": t0_associated,
         "relocalise": opts.relocalise,
         "relocations": up.relocations,
         "movable": up.movable,
