@@ -28,6 +28,8 @@ enum Command {
     Info(cmd::info::Args),
     /// t=0: object-aware 2DGS reconstruction from the training views.
     Reconstruct(cmd::reconstruct::Args),
+    /// Depth, object ids, alpha and normals of a finished run at cameras given in a JSON file.
+    Render(cmd::render::Args),
     /// t=1: scene update after objects were taken away (detection, physics, single-image refinement).
     Update(cmd::update::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
@@ -50,6 +52,7 @@ fn main() -> std::process::ExitCode {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
         Command::Reconstruct(a) => cmd::reconstruct::run(a),
+        Command::Render(a) => cmd::render::run(a),
         Command::Update(a) => cmd::update::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Synth(a) => cmd::synth::run(a),

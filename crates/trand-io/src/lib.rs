@@ -10,6 +10,7 @@
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
 
 pub mod bop;
+pub mod cameras;
 pub mod error;
 pub mod image;
 mod json;
@@ -27,6 +28,7 @@ pub mod write;
 
 use std::path::Path;
 
+pub use cameras::{NamedCamera, cameras_to_json, read_cameras_json};
 pub use error::IoError;
 pub use image::{
     DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16, read_rgb8,

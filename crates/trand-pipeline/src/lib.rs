@@ -9,7 +9,9 @@
 //! * [`mod@update`]: the t = 1 scene update — removal detection, deletion, TSDF mesh, MLS-MPM, single-image
 //!   refinement.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
+//! * [`at_cameras`]: a finished run's depth, object ids, alpha and normals at any camera.
 
+pub mod at_cameras;
 pub mod contact;
 pub mod detect;
 pub mod openings;

@@ -4,5 +4,6 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod reconstruct;
+pub mod render;
 pub mod synth;
 pub mod update;

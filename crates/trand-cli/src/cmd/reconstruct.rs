@@ -228,6 +228,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "data": a.data.canonicalize().unwrap_or(a.data.clone()),
         "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
+        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t0),
         "object_channels": rec.channels,
         "vessel_tops": rec.vessel_tops,
         "timings": {
