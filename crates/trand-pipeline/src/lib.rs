@@ -19,6 +19,7 @@ pub mod outputs;
 pub mod reconstruct;
 pub mod relocalise;
 pub mod simulate;
+pub mod support;
 pub mod targets;
 #[cfg(test)]
 mod test_scene;

@@ -20,6 +20,7 @@ use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
 use crate::openings::{Opening, VesselTop};
+use crate::support::{Support, SupportPrior};
 use crate::targets::{self, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
@@ -74,6 +75,8 @@ pub struct ReconstructOptions {
     pub init_mode: InitMode,
     pub init: InitConfig,
     pub openings: OpeningPrior,
+    /// The table-support restriction of the visual hull (see [`crate::support`]).
+    pub support: SupportPrior,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -88,6 +91,7 @@ impl Default for ReconstructOptions {
             init_mode: InitMode::VisualHull,
             init: InitConfig::default(),
             openings: OpeningPrior::Carve,
+            support: SupportPrior::Auto,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -111,6 +115,8 @@ pub struct Reconstruction {
     pub initial_surfels: usize,
     /// The opening prior's decision per object (empty when it is off).
     pub vessel_tops: Vec<VesselTop>,
+    /// Whether the visual hull was restricted by the support prior.
+    pub support_applied: bool,
 }
 
 fn view_count(n: u32) -> Result<ViewCount> {
@@ -209,10 +215,15 @@ fn visual_hull_points(
     views: &[TrainView],
     cfg: &InitConfig,
     target: usize,
+    support: Option<&Support<'_>>,
 ) -> Result<Vec<[f32; 3]>> {
     let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
     let inside = |p: [f32; 3]| {
+        let q = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        if support.is_some_and(|s| !s.holds(q)) {
+            return false;
+        }
         let mut seen = 0;
         for v in views {
             let Some((x, y, _)) =
@@ -252,6 +263,20 @@ fn visual_hull_points(
     Ok(kept)
 }
 
+/// The support prior's test for these views, when [`ReconstructOptions::support`] applies to them.
+pub fn support_test<'a>(
+    views: &'a [TrainView],
+    opts: &ReconstructOptions,
+) -> Result<Option<Support<'a>>> {
+    let b = hull_box(views)?;
+    let centre = glam::DVec3::new(
+        0.5 * (b.min[0] + b.max[0]),
+        0.5 * (b.min[1] + b.max[1]),
+        0.0,
+    );
+    Ok(Support::new(views, opts.support, centre))
+}
+
 /// Initial surfels for the chosen [`InitMode`].
 pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result<Surfels> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
@@ -260,7 +285,8 @@ pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result
     match (opts.init_mode, opts.method.supervision()) {
         (InitMode::VisualHull, Supervision::ObjectAware) => {
             let n = opts.init.num_volume + 4 * opts.init.num_per_face;
-            let pts = visual_hull_points(views, &opts.init, n / 5)?;
+            let support = support_test(views, opts)?;
+            let pts = visual_hull_points(views, &opts.init, n / 5, support.as_ref())?;
             let mut rng = Pcg64::seed_from_u64(opts.init.seed ^ 0x6875_6c6c);
             Ok(surfels_from_points(pts, &opts.init, deg, k, &mut rng)?)
         }
@@ -302,6 +328,9 @@ pub fn reconstruct(
         None => (initial_surfels(&views, opts)?, cfg.start_iteration + 1),
     };
     let initial = surfels.len();
+    let support_applied = opts.init_mode == InitMode::VisualHull
+        && opts.method.supervision() == Supervision::ObjectAware
+        && support_test(&views, opts)?.is_some();
     let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let preprocess_s = t0.elapsed().as_secs_f64();
 
@@ -338,5 +367,6 @@ pub fn reconstruct(
         curve,
         initial_surfels: initial,
         vessel_tops,
+        support_applied,
     })
 }

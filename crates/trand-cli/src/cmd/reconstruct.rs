@@ -13,6 +13,7 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::reconstruct::OpeningPrior;
+use trand_pipeline::support::SupportPrior;
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, reconstruct};
 
 #[derive(clap::Args)]
@@ -46,6 +47,11 @@ pub struct Args {
     /// bowls and wine glasses, so their inside is fitted instead of a lid) or off.
     #[arg(long, value_parser = parse_openings)]
     pub openings: Option<OpeningPrior>,
+    /// Support prior: auto (default: on when the training views span less than 30 degrees), on or
+    /// off. Keeps the initial surfels where the table under them is hidden behind an object in every
+    /// view, which pins the depth a narrow baseline leaves open.
+    #[arg(long, value_parser = parse_support)]
+    pub support: Option<SupportPrior>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -61,6 +67,15 @@ fn parse_openings(s: &str) -> Result<OpeningPrior, String> {
         "carve" => Ok(OpeningPrior::Carve),
         "off" => Ok(OpeningPrior::Off),
         _ => Err(format!("unknown opening prior `{s}` (carve, off)")),
+    }
+}
+
+fn parse_support(s: &str) -> Result<SupportPrior, String> {
+    match s {
+        "auto" => Ok(SupportPrior::Auto),
+        "on" => Ok(SupportPrior::On),
+        "off" => Ok(SupportPrior::Off),
+        _ => Err(format!("unknown support prior `{s}` (auto, on, off)")),
     }
 }
 
@@ -121,6 +136,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(p) = a.openings {
         o.openings = p;
+    }
+    if let Some(p) = a.support {
+        o.support = p;
     }
     Ok(o)
 }
@@ -231,6 +249,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t0),
         "object_channels": rec.channels,
         "vessel_tops": rec.vessel_tops,
+        "support_prior": { "mode": opts.support, "applied": rec.support_applied },
         "timings": {
             "preprocess_s": rec.preprocess_s,
             "optimise_s": rec.optimise_s,
