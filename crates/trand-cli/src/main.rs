@@ -26,6 +26,9 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// A copy of a sequence with perturbed training inputs (per-image ids, mask boundaries, missed
+    /// masks, pose error), seeded; the test views stay exact.
+    Perturb(cmd::perturb::Args),
     /// t=0: object-aware 2DGS reconstruction from the training views.
     Reconstruct(cmd::reconstruct::Args),
     /// Depth, object ids, alpha and normals of a finished run at cameras given in a JSON file.
@@ -51,6 +54,7 @@ fn main() -> std::process::ExitCode {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
+        Command::Perturb(a) => cmd::perturb::run(a),
         Command::Reconstruct(a) => cmd::reconstruct::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Update(a) => cmd::update::run(a),

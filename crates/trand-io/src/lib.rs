@@ -18,6 +18,7 @@ pub mod mesh;
 pub mod nerfstudio;
 pub mod npy;
 mod paths;
+pub mod perturb;
 pub mod ply;
 mod pose;
 pub mod run_layout;
