@@ -32,13 +32,16 @@ use std::path::Path;
 pub use cameras::{NamedCamera, cameras_to_json, read_cameras_json};
 pub use error::IoError;
 pub use image::{
-    DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16, read_rgb8,
+    DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16,
+    read_instance_mask, read_rgb8,
 };
 pub use mesh::{Mesh, write_mesh_ply};
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
 pub use scratch::ScratchDir;
-pub use view::{Load, LoadOptions, Sequence, Split, State, View, ViewCount, select_train_views};
+pub use view::{
+    Load, LoadOptions, Sequence, Split, State, TrainSelection, View, ViewCount, select_train_views,
+};
 pub use write::{
     RunDir, write_atomic, write_depth_png_mm, write_gray8_png, write_gray16_png,
     write_probability_png, write_rgb_f32_png, write_rgb_png,

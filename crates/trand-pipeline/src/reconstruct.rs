@@ -15,7 +15,7 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use trand_core::{Surfels, math::softmax};
-use trand_io::{Sequence, ViewCount, select_train_views};
+use trand_io::{Sequence, TrainSelection, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
@@ -138,7 +138,10 @@ pub fn train_views(
     seq: &Sequence,
     opts: &ReconstructOptions,
 ) -> Result<(Vec<TrainView>, Channels)> {
-    let chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
+    let chosen = match seq.train_selection {
+        TrainSelection::Ring => select_train_views(&seq.train_t0, view_count(opts.views)?),
+        TrainSelection::Listed => seq.train_t0.clone(),
+    };
     if chosen.is_empty() {
         return Err(PipelineError::Invalid(format!(
             "{}: no training views at t=0",

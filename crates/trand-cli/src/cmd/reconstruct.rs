@@ -186,6 +186,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let seq = read_sequence(&a.data, opts.num_objects)?;
 
+    let frames: Vec<u32> = match seq.train_selection {
+        trand_io::TrainSelection::Listed => seq.train_t0.iter().map(|v| v.frame).collect(),
+        trand_io::TrainSelection::Ring => trand_io::ViewCount::from_count(opts.views as usize)
+            .map(|n| {
+                trand_io::select_train_views(&seq.train_t0, n)
+                    .iter()
+                    .map(|v| v.frame)
+                    .collect()
+            })
+            .unwrap_or_default(),
+    };
+    eprintln!(
+        "training on {} view(s) at t=0: frames {frames:?}{}",
+        frames.len(),
+        match seq.train_selection {
+            trand_io::TrainSelection::Listed => " (every training image the layout lists)",
+            trand_io::TrainSelection::Ring => " (the ring views --views selects)",
+        }
+    );
+
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let c = cancel.clone();
@@ -237,7 +257,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sh_degree: Some(opts.train.sh_degree),
         ..Default::default()
     };
-    let renders = trand_pipeline::outputs::render_views(&rec.surfels, &seq.test_t0, &settings)?;
+    // Without test views, the depth is rendered at the training views (named by their frames).
+    let trained: Vec<trand_io::View> = seq
+        .train_t0
+        .iter()
+        .filter(|v| rec.train_views.contains(&v.name))
+        .cloned()
+        .collect();
+    let (depth_views, depth_at) = if seq.test_t0.is_empty() {
+        eprintln!(
+            "note: {} has no t=0 test views; depth/ holds the training views' depth instead",
+            a.data.display()
+        );
+        (&trained, "train")
+    } else {
+        (&seq.test_t0, "test")
+    };
+    let renders = trand_pipeline::outputs::render_views(&rec.surfels, depth_views, &settings)?;
     let render_s = t_render.elapsed().as_secs_f64();
     let run_json = serde_json::json!({
         "state": "t0",
@@ -246,7 +282,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "data": a.data.canonicalize().unwrap_or(a.data.clone()),
         "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
-        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t0),
+        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(depth_views),
+        "depth_views": depth_at,
         "object_channels": rec.channels,
         "vessel_tops": rec.vessel_tops,
         "support_prior": { "mode": opts.support, "applied": rec.support_applied },
