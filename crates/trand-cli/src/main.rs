@@ -26,8 +26,13 @@ enum Command {
     Demo(cmd::demo::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
+    /// A copy of a sequence with perturbed training inputs (per-image ids, mask boundaries, missed
+    /// masks, pose error), seeded; the test views stay exact.
+    Perturb(cmd::perturb::Args),
     /// t=0: object-aware 2DGS reconstruction from the training views.
     Reconstruct(cmd::reconstruct::Args),
+    /// Depth, object ids, alpha and normals of a finished run at cameras given in a JSON file.
+    Render(cmd::render::Args),
     /// t=1: scene update after objects were taken away (detection, physics, single-image refinement).
     Update(cmd::update::Args),
     /// Depth metrics (MAE, RMSE, accuracies) of a run's predicted test depths.
@@ -49,7 +54,9 @@ fn main() -> std::process::ExitCode {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Demo(a) => cmd::demo::run(a),
         Command::Info(a) => cmd::info::run(a),
+        Command::Perturb(a) => cmd::perturb::run(a),
         Command::Reconstruct(a) => cmd::reconstruct::run(a),
+        Command::Render(a) => cmd::render::run(a),
         Command::Update(a) => cmd::update::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Synth(a) => cmd::synth::run(a),

@@ -202,6 +202,45 @@ pub fn read_gray16(path: &Path) -> Result<Image<u16>, IoError> {
     }
 }
 
+/// Reads an instance mask of any common kind as object ids (0 = background):
+/// * 8- or 16-bit grayscale ids, as [`read_gray16`];
+/// * a single-object 0/255 mask (8 bits, 255 the only non-zero value) as id 1;
+/// * an RGBA cut-out (the object's pixels opaque, the rest transparent; with or without a gray
+///   level) as id 1 where alpha is above half.
+pub fn read_instance_mask(path: &Path) -> Result<InstanceMap, IoError> {
+    let img = decode(path)?;
+    let (w, h) = (img.width(), img.height());
+    let data: Vec<u16> = match img {
+        image::DynamicImage::ImageLuma16(g) => g.into_raw(),
+        image::DynamicImage::ImageLuma8(g) => {
+            let raw = g.into_raw();
+            let binary = raw.iter().all(|&v| v == 0 || v == 255) && raw.contains(&255);
+            raw.into_iter()
+                .map(|v| {
+                    if binary {
+                        u16::from(v == 255)
+                    } else {
+                        u16::from(v)
+                    }
+                })
+                .collect()
+        }
+        image::DynamicImage::ImageRgba8(_) | image::DynamicImage::ImageLumaA8(_) => img
+            .into_rgba8()
+            .pixels()
+            .map(|p| u16::from(p.0[3] > 127))
+            .collect(),
+        other => {
+            return Err(IoError::PixelFormat {
+                path: path.into(),
+                expected: "instance-id grayscale (8/16-bit), 0/255 or RGBA cut-out mask",
+                found: format!("{:?}", other.color()),
+            });
+        }
+    };
+    Ok(Image::from_vec(w, h, 1, data).expect("decoded sizes agree"))
+}
+
 /// Reads a 16-bit depth PNG whose values times `mm_per_unit` are millimetres, as metres.
 pub fn read_depth_png(path: &Path, mm_per_unit: f64) -> Result<DepthMap, IoError> {
     let raw = match decode(path)? {
@@ -231,6 +270,21 @@ pub fn read_depth_png(path: &Path, mm_per_unit: f64) -> Result<DepthMap, IoError
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn binary_and_cut_out_masks_read_as_object_one_and_id_maps_as_they_are() {
+        let dir = crate::ScratchDir::new("masks").unwrap();
+        let write = |name: &str, img: image::DynamicImage| {
+            let p = dir.path().join(name);
+            img.save(&p).unwrap();
+            read_instance_mask(&p).unwrap().data
+        };
+        let gray = |v: Vec<u8>| image::GrayImage::from_raw(3, 1, v).unwrap().into();
+        assert_eq!(write("bin.png", gray(vec![0, 255, 255])), vec![0, 1, 1]);
+        assert_eq!(write("ids.png", gray(vec![0, 2, 255])), vec![0, 2, 255]);
+        let rgba = image::RgbaImage::from_raw(3, 1, vec![9, 9, 9, 0, 9, 9, 9, 255, 1, 2, 3, 200]);
+        assert_eq!(write("cut.png", rgba.unwrap().into()), vec![0, 1, 1]);
+    }
 
     #[test]
     fn instance_map_lists_ids_and_masks() {

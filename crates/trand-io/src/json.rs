@@ -38,6 +38,14 @@ impl<'a> Obj<'a> {
         })
     }
 
+    /// An element of a top-level array, named `at` (e.g. `[3]`).
+    pub fn element(path: &'a Path, at: String, value: &'a Value) -> Result<Self, IoError> {
+        if !value.is_object() {
+            return Err(IoError::field(path, at, "expected an object"));
+        }
+        Ok(Self { path, at, value })
+    }
+
     pub fn name(&self, key: &str) -> String {
         if self.at.is_empty() {
             key.to_string()

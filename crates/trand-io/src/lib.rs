@@ -12,6 +12,7 @@
 //!   the clean-up of temporary folders left by killed runs.
 
 pub mod bop;
+pub mod cameras;
 pub mod error;
 pub mod image;
 mod json;
@@ -20,6 +21,7 @@ pub mod nerfstudio;
 pub mod npy;
 pub mod output;
 mod paths;
+pub mod perturb;
 pub mod ply;
 mod pose;
 pub mod run_layout;
@@ -30,15 +32,19 @@ pub mod write;
 
 use std::path::Path;
 
+pub use cameras::{NamedCamera, cameras_to_json, read_cameras_json};
 pub use error::IoError;
 pub use image::{
-    DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16, read_rgb8,
+    DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16,
+    read_instance_mask, read_rgb8,
 };
 pub use mesh::{Mesh, write_mesh_ply};
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
 pub use scratch::ScratchDir;
-pub use view::{Load, LoadOptions, Sequence, Split, State, View, ViewCount, select_train_views};
+pub use view::{
+    Load, LoadOptions, Sequence, Split, State, TrainSelection, View, ViewCount, select_train_views,
+};
 pub use write::{
     RunDir, write_atomic, write_depth_png_mm, write_gray8_png, write_gray16_png,
     write_probability_png, write_rgb_f32_png, write_rgb_png,

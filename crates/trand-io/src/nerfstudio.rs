@@ -18,14 +18,16 @@
 //!
 //! The file is the t=0 state. A sibling `transforms_t1.json` in the same format, if present, is the t=1
 //! state (a trand convention). View names are `train_0/000003`, the frame being the number at the end
-//! of the image file name (else the position in `frames`).
+//! of the image file name (else the position in `frames`); two images of a split with the same frame
+//! are an error. Every training image is used at t = 0 ([`crate::TrainSelection::Listed`]): the
+//! paper's ring selection (`--views`) applies to BOP and the authors' layout only.
 
 use std::path::Path;
 
 use trand_core::Intrinsics;
 
 use crate::error::IoError;
-use crate::image::{read_depth_png, read_gray16, read_rgb8};
+use crate::image::{read_depth_png, read_instance_mask, read_rgb8};
 use crate::json::{Obj, read_json};
 use crate::npy::read_npy_f32;
 use crate::paths::{frame_number, resolve};
@@ -137,7 +139,7 @@ fn read_file(
         let instance = match (opts.masks.yes(), f.opt_str("mask_path")?) {
             (true, Some(mp)) => {
                 let p = resolve(base, mp);
-                let img = read_gray16(&p)?;
+                let img = read_instance_mask(&p)?;
                 size_check(img.width, img.height, &p, "w/h")?;
                 let found = img.ids();
                 opts.check_ids(&found, &p, &f.name("mask_path"))?;
@@ -181,6 +183,7 @@ fn read_file(
 pub fn read_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Sequence, IoError> {
     let mut seq = Sequence {
         root: root.into(),
+        train_selection: crate::view::TrainSelection::Listed,
         ..Default::default()
     };
     let mut ids = Vec::new();
@@ -194,7 +197,22 @@ pub fn read_nerfstudio(root: &Path, opts: &LoadOptions) -> Result<Sequence, IoEr
     seq.object_ids = ids;
     for state in [State::T0, State::T1] {
         for split in [Split::Train, Split::Test] {
-            seq.views_mut(split, state).sort_by_key(|v| v.frame);
+            let views = seq.views_mut(split, state);
+            views.sort_by_key(|v| v.frame);
+            if let Some(w) = views.windows(2).find(|w| w[0].frame == w[1].frame) {
+                let file = if state == State::T0 { T0_FILE } else { T1_FILE };
+                return Err(IoError::field(
+                    root.join(file),
+                    "frames[].file_path",
+                    format!(
+                        "two {} images are frame {} (the number ending the file name; a name \
+                         without one is numbered by its position in `frames`): give every image \
+                         its own number",
+                        split.folder(state),
+                        w[0].frame
+                    ),
+                ));
+            }
         }
     }
     Ok(seq)

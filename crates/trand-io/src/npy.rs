@@ -10,13 +10,12 @@ use crate::error::IoError;
 use crate::image::Image;
 use crate::write::write_atomic;
 
-/// Writes a single-channel float image as a `(H, W)` float32 `.npy`, atomically.
+/// Writes a float image as a float32 `.npy`, atomically: shape `(H, W)` for one channel, `(H, W, C)`
+/// for more (e.g. normals).
 pub fn write_npy_f32(path: &Path, img: &Image<f32>) -> Result<(), IoError> {
+    let mut shape = vec![img.height as u64, img.width as u64];
     if img.channels != 1 {
-        return Err(IoError::Npy {
-            path: path.into(),
-            reason: format!("expected a 1-channel image, got {} channels", img.channels),
-        });
+        shape.push(img.channels as u64);
     }
     let mut buf = Vec::with_capacity(128 + img.data.len() * 4);
     let npy_err = |e: std::io::Error| IoError::Npy {
@@ -26,7 +25,7 @@ pub fn write_npy_f32(path: &Path, img: &Image<f32>) -> Result<(), IoError> {
     {
         let mut w = npyz::WriteOptions::new()
             .default_dtype()
-            .shape(&[img.height as u64, img.width as u64])
+            .shape(&shape)
             .writer(&mut buf)
             .begin_nd()
             .map_err(npy_err)?;

@@ -21,7 +21,7 @@ use std::path::Path;
 use trand_core::Intrinsics;
 
 use crate::error::IoError;
-use crate::image::{Image, read_depth_png, read_gray16, read_rgb8};
+use crate::image::{Image, read_depth_png, read_instance_mask, read_rgb8};
 use crate::json::{Obj, read_json};
 use crate::paths::{frame_number, resolve};
 use crate::pose;
@@ -115,7 +115,7 @@ fn read_file(
         let instance = match (opts.masks.yes(), f.opt_str("class_path")?) {
             (true, Some(cp)) => {
                 let p = resolve(base, cp);
-                let img: Image<u16> = read_gray16(&p)?;
+                let img: Image<u16> = read_instance_mask(&p)?;
                 size_check(img.width, img.height, &p)?;
                 let found = img.ids();
                 opts.check_ids(&found, &p, "class_path")?;

@@ -80,6 +80,19 @@ pub struct Sequence {
     pub object_ids: Vec<u16>,
     /// Objects removed between t=0 and t=1, when the dataset says (BOP `sequence.json`).
     pub removed_ids: Option<Vec<u16>>,
+    /// Which t=0 training views a reconstruction uses.
+    pub train_selection: TrainSelection,
+}
+
+/// How the t=0 training views are chosen.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TrainSelection {
+    /// The paper's rig: frame 0 a bird's-eye view, frames 1..=12 a ring; `--views` picks 3, 6 or
+    /// 12 of the ring ([`select_train_views`]). BOP and the authors' transforms files.
+    #[default]
+    Ring,
+    /// The layout lists its training images (nerfstudio): every one of them is used.
+    Listed,
 }
 
 impl Sequence {

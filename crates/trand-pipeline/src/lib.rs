@@ -12,9 +12,11 @@
 //!   refinement.
 //! * [`checkpoint`]: checkpoints that resume a reconstruction exactly.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
+//! * [`at_cameras`]: a finished run's depth, object ids, alpha and normals at any camera.
 
-pub mod checkpoint;
+pub mod at_cameras;
 pub mod associate;
+pub mod checkpoint;
 pub mod contact;
 pub mod detect;
 pub mod openings;
@@ -22,6 +24,7 @@ pub mod outputs;
 pub mod reconstruct;
 pub mod relocalise;
 pub mod simulate;
+pub mod support;
 pub mod targets;
 #[cfg(test)]
 mod test_scene;

@@ -15,15 +15,15 @@
 
 use std::path::Path;
 
-use rayon::prelude::*;
 use trand_core::Surfels;
 use trand_io::{
     DepthMap, Image, RunDir, View, write_depth_png_mm, write_npy_f32, write_rgb_png,
     write_surfels_ply,
 };
-use trand_render::{Maps, RenderSettings, render};
+use trand_render::RenderSettings;
 
 use crate::Result;
+use crate::at_cameras;
 use crate::targets::palette;
 
 /// Rendered outputs of one test view.
@@ -48,41 +48,29 @@ pub fn depth_clamp(views: &[View]) -> f32 {
     }
 }
 
-/// Renders the median depth and the object map of every view (full resolution).
+/// Renders the median depth and the object map of every view (full resolution), the depth clamped at
+/// [`depth_clamp`] of the views.
 pub fn render_views(
     surfels: &Surfels,
     views: &[View],
     settings: &RenderSettings,
 ) -> Result<Vec<TestRender>> {
     let clamp = depth_clamp(views);
-    let settings = RenderSettings {
-        maps: Maps::RgbObjects,
-        ..*settings
-    };
     views
         .iter()
         .map(|v| {
-            let out = render::<f32, _>(surfels, &v.camera, &settings)?;
-            let (w, h) = (out.width, out.height);
-            let depth: Vec<f32> = out.median.iter().map(|&d| d.min(clamp)).collect();
-            let k = out.num_objects;
-            let obj: Vec<u8> = out
-                .objects
-                .par_chunks(k)
-                .flat_map_iter(|p| {
-                    let (c, &m) = p
-                        .iter()
-                        .enumerate()
-                        .max_by(|a, b| a.1.total_cmp(b.1))
-                        .expect("K ≥ 1");
-                    let col = if m > 0.5 { palette(c) } else { [0.0; 3] };
-                    col.map(|x| (x * 255.0).round() as u8)
+            let out = at_cameras::render_with_objects(surfels, &v.camera, settings)?;
+            let obj: Vec<u8> = at_cameras::argmax_channels(&out)
+                .into_iter()
+                .flat_map(|c| {
+                    c.map_or([0.0; 3], palette)
+                        .map(|x| (x * 255.0).round() as u8)
                 })
                 .collect();
             Ok(TestRender {
                 frame: v.frame,
-                depth: Image::from_vec(w, h, 1, depth).expect("sizes agree"),
-                objects: Image::from_vec(w, h, 3, obj).expect("sizes agree"),
+                depth: at_cameras::median_depth(&out, clamp),
+                objects: Image::from_vec(out.width, out.height, 3, obj).expect("sizes agree"),
             })
         })
         .collect()

@@ -15,13 +15,14 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use trand_core::{Surfels, math::softmax};
-use trand_io::{Sequence, ViewCount, select_train_views};
+use trand_io::{Sequence, TrainSelection, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
 use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::openings::{Opening, VesselTop};
+use crate::support::{Support, SupportPrior};
 use crate::targets::{self, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
@@ -78,6 +79,8 @@ pub struct ReconstructOptions {
     pub openings: OpeningPrior,
     /// Whether the training masks' instance ids name the same object in every view.
     pub identity: Identity,
+    /// The table-support restriction of the visual hull (see [`crate::support`]).
+    pub support: SupportPrior,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -93,6 +96,7 @@ impl Default for ReconstructOptions {
             init: InitConfig::default(),
             openings: OpeningPrior::Carve,
             identity: Identity::Auto,
+            support: SupportPrior::Auto,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -167,6 +171,8 @@ pub struct Reconstruction {
     pub initial_surfels: usize,
     /// The opening prior's decision per object (empty when it is off).
     pub vessel_tops: Vec<VesselTop>,
+    /// Whether the visual hull was restricted by the support prior.
+    pub support_applied: bool,
     /// How the training masks' ids were taken.
     pub identity: IdentityReport,
 }
@@ -200,7 +206,10 @@ pub fn train_views(
     seq: &Sequence,
     opts: &ReconstructOptions,
 ) -> Result<(Vec<TrainView>, Channels, IdentityReport)> {
-    let mut chosen = select_train_views(&seq.train_t0, view_count(opts.views)?);
+    let mut chosen = match seq.train_selection {
+        TrainSelection::Ring => select_train_views(&seq.train_t0, view_count(opts.views)?),
+        TrainSelection::Listed => seq.train_t0.clone(),
+    };
     if chosen.is_empty() {
         return Err(PipelineError::Invalid(format!(
             "{}: no training views at t=0",
@@ -321,10 +330,15 @@ fn visual_hull_points(
     views: &[TrainView],
     cfg: &InitConfig,
     target: usize,
+    support: Option<&Support<'_>>,
 ) -> Result<Vec<[f32; 3]>> {
     let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
     let inside = |p: [f32; 3]| {
+        let q = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        if support.is_some_and(|s| !s.holds(q)) {
+            return false;
+        }
         let mut seen = 0;
         for v in views {
             let Some((x, y, _)) =
@@ -364,6 +378,20 @@ fn visual_hull_points(
     Ok(kept)
 }
 
+/// The support prior's test for these views, when [`ReconstructOptions::support`] applies to them.
+pub fn support_test<'a>(
+    views: &'a [TrainView],
+    opts: &ReconstructOptions,
+) -> Result<Option<Support<'a>>> {
+    let b = hull_box(views)?;
+    let centre = glam::DVec3::new(
+        0.5 * (b.min[0] + b.max[0]),
+        0.5 * (b.min[1] + b.max[1]),
+        0.0,
+    );
+    Ok(Support::new(views, opts.support, centre))
+}
+
 /// Initial surfels for the chosen [`InitMode`].
 pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result<Surfels> {
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
@@ -372,7 +400,8 @@ pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result
     match (opts.init_mode, opts.method.supervision()) {
         (InitMode::VisualHull, Supervision::ObjectAware) => {
             let n = opts.init.num_volume + 4 * opts.init.num_per_face;
-            let pts = visual_hull_points(views, &opts.init, n / 5)?;
+            let support = support_test(views, opts)?;
+            let pts = visual_hull_points(views, &opts.init, n / 5, support.as_ref())?;
             let mut rng = Pcg64::seed_from_u64(opts.init.seed ^ 0x6875_6c6c);
             Ok(surfels_from_points(pts, &opts.init, deg, k, &mut rng)?)
         }
@@ -561,6 +590,9 @@ pub fn reconstruct_from(
             )
         }
     };
+    let support_applied = opts.init_mode == InitMode::VisualHull
+        && opts.method.supervision() == Supervision::ObjectAware
+        && support_test(&views, opts)?.is_some();
     let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let preprocess_s = t0.elapsed().as_secs_f64();
 
@@ -618,5 +650,6 @@ pub fn reconstruct_from(
         initial_surfels: initial,
         vessel_tops,
         identity,
+        support_applied,
     })
 }

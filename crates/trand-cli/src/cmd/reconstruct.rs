@@ -23,6 +23,7 @@ use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
+use trand_pipeline::support::SupportPrior;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -60,6 +61,11 @@ pub struct Args {
     /// overlap (per-image ids, e.g. SAM or Mask R-CNN: associated across views by voxel votes).
     #[arg(long, value_enum)]
     pub identity: Option<Identity>,
+    /// Support prior: auto (default: on when the training views span less than 30 degrees), on or
+    /// off. Keeps the initial surfels where the table under them is hidden behind an object in every
+    /// view, which pins the depth a narrow baseline leaves open.
+    #[arg(long, value_parser = parse_support)]
+    pub support: Option<SupportPrior>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -75,6 +81,15 @@ fn parse_openings(s: &str) -> Result<OpeningPrior, String> {
         "carve" => Ok(OpeningPrior::Carve),
         "off" => Ok(OpeningPrior::Off),
         _ => Err(format!("unknown opening prior `{s}` (carve, off)")),
+    }
+}
+
+fn parse_support(s: &str) -> Result<SupportPrior, String> {
+    match s {
+        "auto" => Ok(SupportPrior::Auto),
+        "on" => Ok(SupportPrior::On),
+        "off" => Ok(SupportPrior::Off),
+        _ => Err(format!("unknown support prior `{s}` (auto, on, off)")),
     }
 }
 
@@ -139,6 +154,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     if let Some(i) = a.identity {
         o.identity = i;
     }
+    if let Some(p) = a.support {
+        o.support = p;
+    }
     o.validate().map_err(|e| match &a.config {
         Some(p) => anyhow::anyhow!("{}: {e}", p.display()),
         None => e.into(),
@@ -201,6 +219,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let phase = Arc::new(AtomicU8::new(Phase::Stoppable as u8));
     install_ctrlc(cancel.clone(), phase.clone());
     let seq = read_sequence(&a.data, opts.num_objects)?;
+
+    let frames: Vec<u32> = match seq.train_selection {
+        trand_io::TrainSelection::Listed => seq.train_t0.iter().map(|v| v.frame).collect(),
+        trand_io::TrainSelection::Ring => trand_io::ViewCount::from_count(opts.views as usize)
+            .map(|n| {
+                trand_io::select_train_views(&seq.train_t0, n)
+                    .iter()
+                    .map(|v| v.frame)
+                    .collect()
+            })
+            .unwrap_or_default(),
+    };
+    eprintln!(
+        "training on {} view(s) at t=0: frames {frames:?}{}",
+        frames.len(),
+        match seq.train_selection {
+            trand_io::TrainSelection::Listed => " (every training image the layout lists)",
+            trand_io::TrainSelection::Ring => " (the ring views --views selects)",
+        }
+    );
 
     let total = opts.train.iterations as u64;
     let pb = ProgressBar::new(total);
@@ -273,7 +311,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sh_degree: Some(opts.train.sh_degree),
         ..Default::default()
     };
-    let renders = trand_pipeline::outputs::render_views(&rec.surfels, &seq.test_t0, &settings)?;
+    // Without test views, the depth is rendered at the training views (named by their frames).
+    let trained: Vec<trand_io::View> = seq
+        .train_t0
+        .iter()
+        .filter(|v| rec.train_views.contains(&v.name))
+        .cloned()
+        .collect();
+    let (depth_views, depth_at) = if seq.test_t0.is_empty() {
+        eprintln!(
+            "note: {} has no t=0 test views; depth/ holds the training views' depth instead",
+            a.data.display()
+        );
+        (&trained, "train")
+    } else {
+        (&seq.test_t0, "test")
+    };
+    let renders = trand_pipeline::outputs::render_views(&rec.surfels, depth_views, &settings)?;
     let render_s = t_render.elapsed().as_secs_f64();
     let run_json = serde_json::json!({
         "state": "t0",
@@ -282,9 +336,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
         "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
         "train_views": rec.train_views,
+        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(depth_views),
+        "depth_views": depth_at,
         "object_channels": rec.channels,
         "vessel_tops": rec.vessel_tops,
         "identity": rec.identity,
+        "support_prior": { "mode": opts.support, "applied": rec.support_applied },
         "timings": {
             "preprocess_s": rec.preprocess_s,
             "optimise_s": rec.optimise_s,

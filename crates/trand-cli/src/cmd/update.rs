@@ -300,6 +300,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
         "sequence_fingerprint": fp,
         "new_image": view.name,
+        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t1),
         "object_channels": channels,
         "matching": up.matches,
         "removed": up.removed,
