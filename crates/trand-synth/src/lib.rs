@@ -34,7 +34,6 @@ pub mod error;
 pub mod layout;
 pub mod lean;
 pub mod material;
-pub mod perturb;
 pub mod physics;
 pub mod relation;
 pub mod scene;
