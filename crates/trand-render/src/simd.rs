@@ -5,14 +5,13 @@
 //! instantiated three times ([`Isa`]): for the baseline target (SSE2 pairs); inside an `avx2` function,
 //! where LLVM maps a lane group of `f32` onto one 256-bit register; and inside an AVX-512 function,
 //! where the lane groups stay 256-bit but LLVM has 32 vector registers instead of 16, so the kernels'
-//! two dozen live accumulators and constants spill far less (training step 49 → 46 ms fastest, 57 → 52
-//! ms median; BENCHMARKS.md §3). The choice is made per call from the CPU's features
+//! two dozen live accumulators and constants spill far less (BENCHMARKS.md §5 has the step times). The choice is made per call from the CPU's features
 //! (`is_x86_feature_detected!` caches its answer). All builds run the same IEEE operations without
 //! fused multiply-adds, so they return identical bits: the choice affects speed only (tested).
 //!
 //! One exception to "widest wins": a forward pass that renders the dense K-channel object map stays on
 //! AVX2. With AVX-512 enabled, LLVM's cost model vectorises its per-channel loop *across* the channel
-//! planes with gathers and scatters, and that forward went from 37 to 52 ms. Training renders object
+//! planes with gathers and scatters, which made that forward markedly slower. Training renders object
 //! sums instead ([`crate::labels`]), which have no such loop.
 //!
 //! This is the one place in the crate with `unsafe`: calling a `#[target_feature]` function is unsafe
