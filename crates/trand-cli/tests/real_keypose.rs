@@ -20,8 +20,8 @@ const SOURCES: [&str; 6] = [
 #[test]
 #[ignore = "needs ../shared/data/real/keypose_bottle0 and ~2 minutes on 2 cores"]
 fn keypose_bottle_depth_is_within_the_goal_with_defaults() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/real/keypose_bottle0");
+    let root =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/real/keypose_bottle0");
     let tmp = ScratchDir::new("real-keypose").unwrap();
     let run = tmp.path().join("run0");
     let out = Command::new(env!("CARGO_BIN_EXE_trand"))
@@ -31,7 +31,11 @@ fn keypose_bottle_depth_is_within_the_goal_with_defaults() {
         .arg(&run)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let kp: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(root.join("keypoints.json")).unwrap())
             .unwrap();
@@ -39,8 +43,7 @@ fn keypose_bottle_depth_is_within_the_goal_with_defaults() {
     for (i, src) in SOURCES.iter().enumerate() {
         let frame = 2 * i + 1;
         let pred = read_npy_f32(&run.join(format!("depth/{frame:06}.npy"))).unwrap();
-        let gt =
-            read_npy_f32(&root.join(format!("converted/gt_depth/{frame:06}.npy"))).unwrap();
+        let gt = read_npy_f32(&root.join(format!("converted/gt_depth/{frame:06}.npy"))).unwrap();
         for (&p, &g) in pred.data.iter().zip(&gt.data) {
             if g > 0.0 {
                 sum += (p - g).abs() as f64;

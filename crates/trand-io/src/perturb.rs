@@ -125,11 +125,11 @@ fn perturb_boundary(inst: &mut InstanceMap, max_px: u32, rng: &mut Pcg64) -> Vec
                 new[i] |= b;
             }
         }
-        for i in 0..w * h {
-            if new[i] && (inst.data[i] == 0 || inst.data[i] == id) {
-                inst.data[i] = id;
-            } else if !new[i] && inst.data[i] == id {
-                inst.data[i] = 0;
+        for (px, &inside) in inst.data.iter_mut().zip(&new) {
+            if inside && (*px == 0 || *px == id) {
+                *px = id;
+            } else if !inside && *px == id {
+                *px = 0;
             }
         }
         done.push((id, r));

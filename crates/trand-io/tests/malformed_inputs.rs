@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use serde_json::json;
-use trand_io::{Image, IoError, ScratchDir, read_sequence};
+use trand_io::{Image, ScratchDir, read_sequence};
 
 const W: u32 = 4;
 const H: u32 = 3;
@@ -167,7 +167,7 @@ fn ply_comment_num_objects_1e12_without_obj_index_is_refused() {
 /// NPY v1.0 bytes with the header dictionary `dict` and `data` after it.
 pub fn npy_bytes(dict: &str, data: &[u8]) -> Vec<u8> {
     let mut header = dict.to_string();
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');

@@ -75,11 +75,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 },
             );
             println!("{arg} {:>2} {kind:<22} {decision} {shape}", t.object_id);
-            if std::env::var_os("PROFILE").is_some() {
-                if let Some(p) = hull.get(&t.object_id).and_then(|v| Profile::of(v)) {
-                    let r: Vec<String> = p.radius.iter().map(|r| format!("{:.0}", r * 1000.0)).collect();
-                    println!("    R(mm) from z0: {}", r.join(" "));
-                }
+            if std::env::var_os("PROFILE").is_some()
+                && let Some(p) = hull.get(&t.object_id).and_then(|v| Profile::of(v))
+            {
+                let r: Vec<String> = p
+                    .radius
+                    .iter()
+                    .map(|r| format!("{:.0}", r * 1000.0))
+                    .collect();
+                println!("    R(mm) from z0: {}", r.join(" "));
             }
         }
     }

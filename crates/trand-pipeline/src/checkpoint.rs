@@ -172,7 +172,7 @@ fn take<'b>(rest: &mut &'b [u8], n: u64, path: &Path, what: &str) -> Result<&'b 
 }
 
 fn words<const N: usize>(b: &[u8], path: &Path, what: &str) -> Result<Vec<[u8; N]>, IoError> {
-    if b.len() % N != 0 {
+    if !b.len().is_multiple_of(N) {
         return Err(field(
             path,
             what,

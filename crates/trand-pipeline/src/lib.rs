@@ -14,8 +14,8 @@
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 //! * [`at_cameras`]: a finished run's depth, object ids, alpha and normals at any camera.
 
-pub mod at_cameras;
 pub mod associate;
+pub mod at_cameras;
 pub mod checkpoint;
 pub mod contact;
 pub mod detect;

@@ -213,8 +213,7 @@ impl Profile {
         let mut k = self.radius.len() - 1;
         // The apex of a roof is a few voxels wide: its slices count as roof whatever lies below.
         while k >= ROOF_RUN
-            && (self.radius[k] <= APEX_M
-                || self.radius[k] < self.radius[k - ROOF_RUN] - drop)
+            && (self.radius[k] <= APEX_M || self.radius[k] < self.radius[k - ROOF_RUN] - drop)
         {
             k -= 1;
         }

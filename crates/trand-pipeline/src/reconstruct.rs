@@ -446,6 +446,9 @@ pub fn reconstruct(
 }
 
 /// Where [`reconstruct_from`] starts.
+// Built once per run and moved, never stored in bulk: the size of `Surfels` (a few vectors' headers)
+// is not worth a box.
+#[allow(clippy::large_enum_variant)]
 pub enum Start {
     /// From the initialisation ([`InitMode`]).
     Init,

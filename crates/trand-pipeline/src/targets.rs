@@ -162,8 +162,8 @@ pub fn build(
             for dy in 0..f {
                 for dx in 0..f {
                     let p = (y * f + dy) * w0 + x * f + dx;
-                    for c in 0..3 {
-                        acc[c] += rgb8.data[p * 3 + c] as f32 / 255.0;
+                    for (a, &v) in acc.iter_mut().zip(&rgb8.data[p * 3..p * 3 + 3]) {
+                        *a += v as f32 / 255.0;
                     }
                     let id = inst.data[p];
                     match votes.iter_mut().find(|v| v.0 == id) {

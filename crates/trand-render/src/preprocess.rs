@@ -515,13 +515,13 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
     }
 
     let o = proj.opacity;
-    for a in 0..3 {
-        out.mean[a] += d_mean[a];
+    for (m, d) in out.mean.iter_mut().zip(d_mean) {
+        *m += d;
     }
     out.log_scale[0] += ds[0] * geo.scale[0];
     out.log_scale[1] += ds[1] * geo.scale[1];
-    for a in 0..4 {
-        out.quat[a] += dq[a];
+    for (q, d) in out.quat.iter_mut().zip(dq) {
+        *q += d;
     }
     *out.opacity_logit += g.opacity * o * (R::ONE - o);
     let mut dl = [R::ZERO; 64];

@@ -5,8 +5,8 @@
 //! instantiated three times ([`Isa`]): for the baseline target (SSE2 pairs); inside an `avx2` function,
 //! where LLVM maps a lane group of `f32` onto one 256-bit register; and inside an AVX-512 function,
 //! where the lane groups stay 256-bit but LLVM has 32 vector registers instead of 16, so the kernels'
-//! two dozen live accumulators and constants spill far less (BENCHMARKS.md §5 has the step times). The choice is made per call from the CPU's features
-//! (`is_x86_feature_detected!` caches its answer). All builds run the same IEEE operations without
+//! two dozen live accumulators and constants spill far less (BENCHMARKS.md §5 has the step times).
+//! The choice is made per call from the CPU's features (`is_x86_feature_detected!` caches its answer). All builds run the same IEEE operations without
 //! fused multiply-adds, so they return identical bits: the choice affects speed only (tested).
 //!
 //! One exception to "widest wins": a forward pass that renders the dense K-channel object map stays on

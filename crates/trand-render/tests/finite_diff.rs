@@ -95,7 +95,7 @@ fn check_map(map: Map, seed: u64) {
     let n_params = an_flat.len();
     let (mut checked, mut skipped) = (0usize, 0usize);
     let mut failures = Vec::new();
-    for k in 0..n_params {
+    for (k, &a) in an_flat.iter().enumerate() {
         let h = 1e-6;
         let eval = |delta: f64| {
             let mut p = params.clone();
@@ -110,7 +110,6 @@ fn check_map(map: Map, seed: u64) {
         }
         checked += 1;
         let fd = (lp - lm) / (2.0 * h);
-        let a = an_flat[k];
         if (fd - a).abs() > 1e-6 + 1e-5 * fd.abs().max(a.abs()) {
             let mut tmp = params.clone();
             let name = flat_mut(&mut tmp)[k].0;

@@ -474,22 +474,28 @@ mod tests {
             (0.9, 0.999, -1.0),
             (f64::NAN, 0.999, 1e-15),
         ] {
-            let mut c = TrainConfig::default();
-            c.adam = AdamParams {
-                beta1: b1,
-                beta2: b2,
-                eps,
+            let c = TrainConfig {
+                adam: AdamParams {
+                    beta1: b1,
+                    beta2: b2,
+                    eps,
+                },
+                ..TrainConfig::default()
             };
             assert!(
                 c.validate().is_err(),
                 "beta1 {b1}, beta2 {b2}, eps {eps} accepted"
             );
         }
-        let mut c = TrainConfig::default();
-        c.near = 0.0;
+        let c = TrainConfig {
+            near: 0.0,
+            ..TrainConfig::default()
+        };
         assert!(c.validate().is_err());
-        let mut c = TrainConfig::default();
-        c.start_iteration = u32::MAX;
+        let c = TrainConfig {
+            start_iteration: u32::MAX,
+            ..TrainConfig::default()
+        };
         assert!(c.validate().is_err());
     }
 

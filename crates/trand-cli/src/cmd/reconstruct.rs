@@ -22,8 +22,8 @@ use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
-use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 use trand_pipeline::support::SupportPrior;
+use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
