@@ -15,7 +15,7 @@ use std::cell::Cell;
 use std::path::Path;
 
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestRunner};
+use proptest::test_runner::{Config, TestRng, TestRunner};
 use serde_json::{Value, json};
 use trand_io::{Image, LoadOptions, ScratchDir, read_sequence_with};
 
@@ -62,12 +62,15 @@ fn allowance(input: usize) -> usize {
     (8 << 20) + 64 * input
 }
 
+/// A runner with a fixed seed: every run tries the same cases, so a failure is reproducible.
 fn runner(cases: u32) -> TestRunner {
-    TestRunner::new(Config {
+    let config = Config {
         cases,
         failure_persistence: None,
         ..Config::default()
-    })
+    };
+    let rng = TestRng::deterministic_rng(config.rng_algorithm);
+    TestRunner::new_with_rng(config, rng)
 }
 
 /// Numbers and values that break careless readers.

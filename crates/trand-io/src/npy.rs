@@ -35,9 +35,10 @@ pub fn write_npy_f32(path: &Path, img: &Image<f32>) -> Result<(), IoError> {
     write_atomic(path, &buf)
 }
 
-/// Checks the preamble (`\x93NUMPY`, version, header length) against the file's size: the decoder
-/// allocates the header's stated length before reading it.
-fn check_header_length(bytes: &[u8]) -> Result<(), String> {
+/// Checks the preamble (`\x93NUMPY`, version, header length) against the file's size (the decoder
+/// allocates the header's stated length before reading it), and that the element count of the
+/// header's `shape` fits in 64 bits (the decoder multiplies the dimensions unchecked).
+fn check_header(bytes: &[u8]) -> Result<(), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not an NPY file (no \\x93NUMPY magic)".into());
     }
@@ -55,7 +56,29 @@ fn check_header_length(bytes: &[u8]) -> Result<(), String> {
             bytes.len()
         ));
     }
+    let header = String::from_utf8_lossy(&bytes[start..start + len]);
+    let dims = shape_of(&header).ok_or("the header's 'shape' is not a tuple of integers")?;
+    if dims
+        .iter()
+        .try_fold(1u64, |n, &d| n.checked_mul(d))
+        .is_none()
+    {
+        return Err(format!("shape {dims:?} has more elements than 2^64"));
+    }
     Ok(())
+}
+
+/// The dimensions in the header dictionary's `'shape': (...)`; `None` unless every one is an integer.
+fn shape_of(header: &str) -> Option<Vec<u64>> {
+    let rest = &header[header.find("'shape'")?..];
+    let open = rest.find('(')?;
+    let close = open + rest[open..].find(')')?;
+    rest[open + 1..close]
+        .split(',')
+        .map(str::trim)
+        .filter(|d| !d.is_empty())
+        .map(|d| d.parse().ok())
+        .collect()
 }
 
 /// Reads a `(H, W)` (or `(H, W, 1)`) float32 or float64 `.npy` in C order as a single-channel image.
@@ -65,7 +88,7 @@ pub fn read_npy_f32(path: &Path) -> Result<Image<f32>, IoError> {
         path: path.into(),
         reason,
     };
-    check_header_length(&bytes).map_err(err)?;
+    check_header(&bytes).map_err(err)?;
     let npy = npyz::NpyFile::new(&bytes[..]).map_err(|e| err(e.to_string()))?;
     let shape = npy.shape().to_vec();
     let (h, w) = match shape.as_slice() {
