@@ -26,7 +26,8 @@
 //! # The score
 //! Each finalist and the simulated pose itself are rendered ([`silhouette`]) and scored
 //!
-//! `score = IoU − w_photo · photometric − w_rest · implausibility − w_prior · prior − w_energy · energy`
+//! `score = IoU − w_photo · photometric − w_rest · implausibility − w_prior · prior − w_turn · turn
+//!          − w_energy · energy`
 //!
 //! * IoU of the rendered silhouette with the instance mask (other objects' pixels not counted against
 //!   it);
@@ -38,6 +39,10 @@
 //!   far its centre of mass overhangs its contacts, in object sizes ([`support::Rest`]);
 //! * prior: mean distance from the simulated pose in object sizes, capped: the simulation's outcome
 //!   breaks the ties one view leaves (upright or upside down, which way it fell);
+//! * turn: how far past lying on its side the pose has turned from the simulated one (0 up to 90°, 1
+//!   upside down): a fall tips an object over far more often than it rolls it onto its top, and an
+//!   open vessel upside down can cover its mask better than upright when its t = 0 shape lacks the
+//!   foot its support hid;
 //! * energy: height of the centre of mass above the lowest it can lie, in object sizes: a falling
 //!   glass dissipates its energy and ends in a deep resting state far more often than balanced in a
 //!   high one, so between poses the image cannot tell apart, the lower one is taken.
@@ -107,6 +112,9 @@ pub struct Weights {
     /// mass one size higher, needs this much more IoU.
     pub prior: f64,
     pub energy: f64,
+    /// A pose turned upside down from the simulated one needs this much more IoU (nothing up to
+    /// lying on its side; [`search::FREE_TURN_DEG`]).
+    pub turn: f64,
 }
 
 impl Default for Weights {
@@ -116,6 +124,7 @@ impl Default for Weights {
             rest: 1.0,
             prior: 0.05,
             energy: 0.05,
+            turn: 0.25,
         }
     }
 }
@@ -141,6 +150,7 @@ pub struct Score {
     pub rest: Rest,
     pub implausibility: f64,
     pub prior: f64,
+    pub turn: f64,
     pub energy: f64,
 }
 

@@ -16,7 +16,8 @@
 //!   the rendered score.
 //!
 //! The cheap objective is the score with the splat silhouette's IoU and without the photometric term
-//! (which needs a render): `IoU_splat − w_rest · implausibility − w_prior · prior − w_energy · energy`.
+//! (which needs a render): `IoU_splat − w_rest · implausibility − w_prior · prior − w_turn · turn
+//! − w_energy · energy`.
 //! The splat and the render disagree by a few pixels, which is what the polish corrects.
 
 use glam::{DQuat, DVec3};
@@ -43,6 +44,21 @@ pub const FINALISTS: usize = 4;
 pub const DISTINCT_DEG: f64 = 25.0;
 /// The prior saturates at this many object sizes from the simulated pose.
 pub const PRIOR_CAP: f64 = 2.0;
+/// Turning further than this from the simulated pose's vertical costs the turn term (degrees): a
+/// fall tips an object over (up to lying, 90°) far more often than it rolls it onto its top.
+pub const FREE_TURN_DEG: f64 = 90.0;
+
+/// The turn term: how far past [`FREE_TURN_DEG`] the object's t = 0 vertical has turned from where
+/// it points in `simulated`, as a fraction of the remaining 90° (0 up to lying, 1 upside down).
+pub fn turn_past_lying(pose: &Pose, simulated: &Pose) -> f64 {
+    let up = |p: &Pose| p.rot * glam::DVec3::Z;
+    let deg = up(pose)
+        .dot(up(simulated))
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    ((deg - FREE_TURN_DEG) / (180.0 - FREE_TURN_DEG)).max(0.0)
+}
 
 /// Where a candidate came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -92,11 +108,16 @@ impl Search<'_, '_> {
         (self.shape.distance(pose, &self.prior) / self.shape.size).min(PRIOR_CAP)
     }
 
+    fn turn_term(&self, pose: &Pose) -> f64 {
+        turn_past_lying(pose, &self.prior)
+    }
+
     /// The score of `pose` given its rendered IoU and photometric error.
     pub fn terms(&self, pose: &Pose, iou: f64, photometric: Option<f64>) -> Score {
         let rest = self.support.rest(self.shape, pose);
         let implausibility = rest.implausibility(self.shape.size);
         let prior = self.prior_term(pose);
+        let turn = self.turn_term(pose);
         let energy = self.shape.energy(pose, self.support.ground());
         let w = &self.weights;
         Score {
@@ -104,12 +125,14 @@ impl Search<'_, '_> {
                 - w.photometric * photometric.unwrap_or(1.0)
                 - w.rest * implausibility
                 - w.prior * prior
+                - w.turn * turn
                 - w.energy * energy,
             iou,
             photometric,
             rest,
             implausibility,
             prior,
+            turn,
             energy,
         }
     }
@@ -127,6 +150,7 @@ impl Search<'_, '_> {
         let rest = self.support.rest(self.shape, pose);
         iou - self.weights.rest * rest.implausibility(self.shape.size)
             - self.weights.prior * self.prior_term(pose)
+            - self.weights.turn * self.turn_term(pose)
             - self.weights.energy * self.shape.energy(pose, self.support.ground())
     }
 
@@ -312,4 +336,43 @@ pub fn ray_at_height(cam: &trand_core::Camera, u: f64, v: f64, z: f64) -> Option
     }
     let s = (z - eye.z) / dir.z;
     (s > 0.0).then(|| eye + s * dir)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DQuat, DVec3};
+
+    fn turned(axis: DVec3, deg: f64) -> Pose {
+        Pose {
+            rot: DQuat::from_axis_angle(axis, deg.to_radians()),
+            t: DVec3::new(0.01, -0.02, 0.03),
+        }
+    }
+
+    #[test]
+    fn turning_up_to_lying_is_free_and_upside_down_costs_one() {
+        let upright = Pose::IDENTITY;
+        for (deg, want) in [
+            (0.0, 0.0),
+            (60.0, 0.0),
+            (90.0, 0.0),
+            (135.0, 0.5),
+            (180.0, 1.0),
+        ] {
+            let t = turn_past_lying(&turned(DVec3::X, deg), &upright);
+            assert!((t - want).abs() < 1e-9, "{deg}°: {t}, want {want}");
+        }
+        // A yaw about the vertical is no turn at all.
+        assert!(turn_past_lying(&turned(DVec3::Z, 170.0), &upright).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_turn_is_measured_from_the_simulated_pose_not_the_world() {
+        // Simulated lying on its side: lying on the other side is a half turn past lying, upright is free.
+        let lying = turned(DVec3::Y, 90.0);
+        assert!(turn_past_lying(&Pose::IDENTITY, &lying).abs() < 1e-9);
+        let other_side = turned(DVec3::Y, -90.0);
+        assert!((turn_past_lying(&other_side, &lying) - 1.0).abs() < 1e-9);
+    }
 }
