@@ -8,9 +8,11 @@
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
 //! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
+//! * [`arrays`]: cameras and sequences from in-memory arrays (a host program's images and poses).
 //! * [`output`]: checks of output folders before work starts, the marker of folders trand wrote, and
 //!   the clean-up of temporary folders left by killed runs.
 
+pub mod arrays;
 pub mod bop;
 pub mod cameras;
 pub mod error;
@@ -32,6 +34,7 @@ pub mod write;
 
 use std::path::Path;
 
+pub use arrays::{ArrayError, camera_from_matrices, view_from_arrays};
 pub use cameras::{NamedCamera, cameras_to_json, read_cameras_json};
 pub use error::IoError;
 pub use image::{
