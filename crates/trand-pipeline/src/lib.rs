@@ -13,6 +13,7 @@
 //! * [`checkpoint`]: checkpoints that resume a reconstruction exactly.
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 //! * [`at_cameras`]: a finished run's depth, object ids, alpha and normals at any camera.
+//! * [`run_folder`]: a finished run folder read back for rendering.
 
 pub mod associate;
 pub mod at_cameras;
@@ -23,6 +24,7 @@ pub mod openings;
 pub mod outputs;
 pub mod reconstruct;
 pub mod relocalise;
+pub mod run_folder;
 pub mod simulate;
 pub mod support;
 pub mod targets;

@@ -2,6 +2,7 @@
 //! and meshed, particles from surfel centres and mesh vertices, MLS-MPM, and the surfels moved with
 //! their particles ([`SurfelMotion`]).
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::{DVec3, Quat};
@@ -39,8 +40,8 @@ pub enum SurfelMotion {
     RigidPerObject,
 }
 
-/// Probability of channel `c` for every surfel.
-pub(crate) fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
+/// Probability of channel `c` for every surfel (softmax of its object logits).
+pub fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
     let k = s.num_objects;
     let mut p = vec![0.0f32; k];
     (0..s.len())
@@ -75,7 +76,8 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
 }
 
 /// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
-/// count, the largest surfel displacement and the meshing and simulation times.
+/// count, the largest surfel displacement and the meshing and simulation times. Stops with
+/// [`PipelineError::Interrupted`] after the meshing view or simulated frame during which `cancel` was set.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
     surfels: &mut Surfels,
@@ -85,7 +87,15 @@ pub fn simulate(
     opts: &UpdateOptions,
     settings: &RenderSettings,
     progress: &mut dyn FnMut(&str, u32, u32),
+    cancel: &AtomicBool,
 ) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
+    let stop = || {
+        if cancel.load(Ordering::SeqCst) {
+            Err(PipelineError::Interrupted(0))
+        } else {
+            Ok(())
+        }
+    };
     let t0 = Instant::now();
     let cams = virtual_cameras(surfels, opts);
     let ts = TsdfSettings::tran_d(scale.radius.max(0.05));
@@ -120,6 +130,7 @@ pub fn simulate(
         tsdf.integrate(cam, &depth, ts.trunc, ts.max_depth)
             .map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
         progress("meshing", i as u32 + 1, n_cams);
+        stop()?;
     }
     let mut mesh = tsdf.extract_mesh();
     // Label vertices by the nearest object surfel.
@@ -163,9 +174,13 @@ pub fn simulate(
         let mut solver = MpmSolver::new(opts.mpm.clone(), &set.positions)
             .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
         let frames = opts.mpm.frames;
-        solver
-            .run(frames, |i, n| progress("simulation", i, n))
-            .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
+        for i in 0..frames {
+            solver
+                .step_frame()
+                .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
+            progress("simulation", i + 1, frames);
+            stop()?;
+        }
         let pos = solver.positions();
         let rots = match opts.motion {
             SurfelMotion::TranslateRotate => Some(solver.rotations()),

@@ -19,6 +19,7 @@
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
 //!    object lr 0.1, densification with the t = 0 scene extent).
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use trand_core::{Camera, Surfels};
@@ -202,7 +203,7 @@ pub struct Update {
 /// Runs the whole update of `surfels` (the t = 0 run's object surfels) given the new view.
 #[allow(clippy::too_many_arguments)]
 pub fn update(
-    mut surfels: Surfels,
+    surfels: Surfels,
     channels: &[(u16, usize)],
     new_view: &View,
     scale: SceneScale,
@@ -211,6 +212,41 @@ pub fn update(
     progress: &mut dyn FnMut(&str, u32, u32),
     on_step: &mut dyn FnMut(&StepReport),
 ) -> Result<Update> {
+    let never = AtomicBool::new(false);
+    update_with_cancel(
+        surfels,
+        channels,
+        new_view,
+        scale,
+        supervision,
+        opts,
+        progress,
+        on_step,
+        &never,
+    )
+}
+
+/// [`update`] that stops with [`PipelineError::Interrupted`] soon after `cancel` is set: between
+/// stages, after every meshing view and simulated frame, and after every refinement iteration.
+#[allow(clippy::too_many_arguments)]
+pub fn update_with_cancel(
+    mut surfels: Surfels,
+    channels: &[(u16, usize)],
+    new_view: &View,
+    scale: SceneScale,
+    supervision: Supervision,
+    opts: &UpdateOptions,
+    progress: &mut dyn FnMut(&str, u32, u32),
+    on_step: &mut dyn FnMut(&StepReport),
+    cancel: &AtomicBool,
+) -> Result<Update> {
+    let stop = |it: u32| {
+        if cancel.load(Ordering::SeqCst) {
+            Err(PipelineError::Interrupted(it))
+        } else {
+            Ok(())
+        }
+    };
     let settings = RenderSettings {
         background: opts.train.background,
         near: opts.train.near as f64,
@@ -279,6 +315,7 @@ pub fn update(
     }
     let deleted = before - surfels.len();
     let detection_s = t0.elapsed().as_secs_f64();
+    stop(0)?;
 
     let remaining: Vec<(u16, usize)> = channels
         .iter()
@@ -297,6 +334,7 @@ pub fn update(
                 opts,
                 &settings,
                 progress,
+                cancel,
             )?;
             (Some(m), n, d, a, b)
         } else {
@@ -343,6 +381,7 @@ pub fn update(
     }
     drop(unmoved);
     let relocalisation_s = t_reloc.elapsed().as_secs_f64();
+    stop(0)?;
 
     let t3 = Instant::now();
     let mut curve = Vec::new();
@@ -386,6 +425,9 @@ pub fn update(
             let rep = trainer.step(it, it == last)?;
             curve.push((it, rep.loss));
             on_step(&rep);
+            if it < last {
+                stop(it)?;
+            }
         }
         surfels = trainer.surfels;
     }

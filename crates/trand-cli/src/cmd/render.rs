@@ -17,8 +17,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use trand_io::{Image, LoadOptions, State, read_sequence_with};
+use trand_io::Image;
 use trand_pipeline::at_cameras::{CameraMaps, render_at};
+use trand_pipeline::run_folder::load_run;
 use trand_pipeline::targets::palette;
 
 #[derive(clap::Args)]
@@ -33,112 +34,6 @@ pub struct Args {
     /// Output folder (must not exist).
     #[arg(long)]
     pub out: PathBuf,
-}
-
-/// What a run folder says about how it renders.
-pub(crate) struct RunRender {
-    pub surfels: trand_core::Surfels,
-    pub settings: trand_render::RenderSettings,
-    pub clamp: f32,
-    pub channels: Vec<(u16, usize)>,
-    pub state: State,
-}
-
-fn toml_f64(cfg: &toml::Value, path: &Path, key: &str) -> anyhow::Result<f64> {
-    let v = cfg
-        .get("train")
-        .and_then(|t| t.get(key))
-        .with_context(|| format!("{}: field `train.{key}` missing", path.display()))?;
-    v.as_float()
-        .or_else(|| v.as_integer().map(|i| i as f64))
-        .with_context(|| format!("{}: field `train.{key}` is not a number", path.display()))
-}
-
-/// The far clamp the run used: `run.json`'s `depth_clamp_m` (null = none), or for runs written before
-/// it was recorded, recomputed from the test cameras of the sequence the run names.
-fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> anyhow::Result<f32> {
-    match run_json.get("depth_clamp_m") {
-        Some(serde_json::Value::Null) => return Ok(f32::INFINITY),
-        Some(v) => {
-            return v.as_f64().map(|c| c as f32).with_context(|| {
-                format!(
-                    "{}: field `depth_clamp_m` is not a number",
-                    json_path.display()
-                )
-            });
-        }
-        None => {}
-    }
-    let data = run_json["data"].as_str().with_context(|| {
-        format!(
-            "{}: neither `depth_clamp_m` nor `data` (the sequence) is recorded",
-            json_path.display()
-        )
-    })?;
-    let seq = read_sequence_with(data, &LoadOptions::cameras_only()).with_context(|| {
-        format!(
-            "{}: field `data`: reading the run's sequence",
-            json_path.display()
-        )
-    })?;
-    let views = seq.views(trand_io::Split::Test, state);
-    Ok(trand_pipeline::outputs::depth_clamp(views))
-}
-
-/// Reads a run folder's surfels, render settings, far clamp and object channels.
-pub(crate) fn load_run(run: &Path) -> anyhow::Result<RunRender> {
-    let json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let run_json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&json_path)
-            .with_context(|| format!("{}: not a run folder", run.display()))?,
-    )
-    .with_context(|| format!("{}: malformed JSON", json_path.display()))?;
-    let state: State = run_json["state"]
-        .as_str()
-        .and_then(|s| s.parse().ok())
-        .with_context(|| format!("{}: field `state` must be t0 or t1", json_path.display()))?;
-    let channels: Vec<(u16, usize)> =
-        serde_json::from_value(run_json["object_channels"].clone())
-            .with_context(|| format!("{}: field `object_channels`", json_path.display()))?;
-    let cfg_path = run.join("config.toml");
-    let cfg: toml::Value = toml::from_str(
-        &std::fs::read_to_string(&cfg_path)
-            .with_context(|| format!("reading {}", cfg_path.display()))?,
-    )
-    .with_context(|| format!("{}: invalid TOML", cfg_path.display()))?;
-    let background = cfg
-        .get("train")
-        .and_then(|t| t.get("background"))
-        .and_then(|b| b.as_array())
-        .filter(|b| b.len() == 3)
-        .and_then(|b| {
-            let c: Vec<f32> = b
-                .iter()
-                .filter_map(|x| x.as_float())
-                .map(|x| x as f32)
-                .collect();
-            <[f32; 3]>::try_from(c).ok()
-        })
-        .with_context(|| {
-            format!(
-                "{}: field `train.background` must be 3 numbers",
-                cfg_path.display()
-            )
-        })?;
-    let settings = trand_render::RenderSettings {
-        background,
-        near: toml_f64(&cfg, &cfg_path, "near")? as f32 as f64,
-        sh_degree: Some(toml_f64(&cfg, &cfg_path, "sh_degree")? as u32),
-        ..Default::default()
-    };
-    let surfels = trand_io::read_surfels_ply(&run.join("surfels.ply"))?;
-    Ok(RunRender {
-        clamp: clamp_of(&run_json, state, &json_path)?,
-        surfels,
-        settings,
-        channels,
-        state,
-    })
 }
 
 fn write_maps(
