@@ -156,6 +156,7 @@ pub struct PyScene {
 #[pymethods]
 impl PyScene {
     /// Depth, object ids, alpha and normals at one camera, as little-endian bytes.
+    #[pyo3(signature = (k, w2c, width, height, far=None))]
     fn render<'py>(
         &self,
         py: Python<'py>,
@@ -163,9 +164,13 @@ impl PyScene {
         w2c: [f64; 16],
         width: u32,
         height: u32,
+        far: Option<f32>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let cam = camera(k, w2c, width, height, "")?;
-        let maps = interrupt::run(py, |_| self.inner.render(&cam))?.map_err(py_err)?;
+        if far.is_some_and(|f| f.is_nan() || f <= 0.0) {
+            return Err(arg_err("far", "must be a positive number of metres"));
+        }
+        let maps = interrupt::run(py, |_| self.inner.render(&cam, far))?.map_err(py_err)?;
         let d = PyDict::new(py);
         d.set_item("depth", le_bytes(py, &maps.depth.data, f32::to_le_bytes))?;
         d.set_item("objects", le_bytes(py, &maps.ids.data, u16::to_le_bytes))?;
@@ -224,6 +229,12 @@ impl PyScene {
     #[getter]
     fn removed(&self) -> Vec<u16> {
         self.inner.removed.clone()
+    }
+
+    /// The far clamp of rendered depth in metres (infinity: none).
+    #[getter]
+    fn far(&self) -> f32 {
+        self.inner.clamp
     }
 
     /// The run report (`run.json`) as JSON text.

@@ -165,13 +165,14 @@ impl Scene {
         })
     }
 
-    /// Depth, object ids, alpha and normals at `camera`, as `trand render` gives them.
-    pub fn render(&self, camera: &Camera) -> Result<CameraMaps> {
+    /// Depth, object ids, alpha and normals at `camera`, as `trand render` gives them; depth beyond
+    /// `far` metres (default: the scene's clamp) is clamped to it.
+    pub fn render(&self, camera: &Camera, far: Option<f32>) -> Result<CameraMaps> {
         Ok(render_at(
             &self.surfels,
             camera,
             &self.settings,
-            self.clamp,
+            far.unwrap_or(self.clamp),
             &self.channels,
         )?)
     }
@@ -249,6 +250,16 @@ impl Scene {
             return Err(SceneError::argument(
                 "mask",
                 "the new image's mask is empty (no object pixels)",
+            ));
+        }
+        if let Some(id) = removed
+            .iter()
+            .flatten()
+            .find(|id| !self.channels.iter().any(|c| c.0 == **id))
+        {
+            return Err(SceneError::argument(
+                "removed",
+                format!("no object {id} at t=0 (objects: {:?})", self.object_ids()),
             ));
         }
         let mut opts = UpdateOptions {
@@ -338,6 +349,13 @@ impl Scene {
 
     /// Reads a run folder written by `trand reconstruct`, `trand update` or [`Scene::save`].
     pub fn load(path: &Path) -> Result<Scene> {
+        if !path.is_dir() {
+            return Err(IoError::Missing {
+                path: path.into(),
+                what: "run folder".into(),
+            }
+            .into());
+        }
         let r = trand_pipeline::run_folder::load_run(path)?;
         let ply = path.join("surfels.ply");
         r.surfels.validate().map_err(|e| {

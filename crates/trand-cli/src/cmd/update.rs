@@ -200,7 +200,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
     let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
     let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
-    if run_json["sequence_fingerprint"].as_str() != Some(fp.as_str()) {
+    let recorded = &run_json["sequence_fingerprint"];
+    if recorded.is_null() {
+        // A run made from in-memory arrays (the Python package's `Scene.save`) names no sequence.
+        eprintln!(
+            "note: {} records no sequence; taking {} to be the one it was reconstructed from",
+            a.run.display(),
+            a.data.display()
+        );
+    } else if recorded.as_str() != Some(fp.as_str()) {
         bail!(
             "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
             a.run.display(),
