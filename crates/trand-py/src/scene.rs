@@ -427,3 +427,7 @@ fn scale_from_sequence(
     let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
     Some(SceneScale::from_cameras(&cams, opts.downsample))
 }
+
+#[cfg(test)]
+#[path = "scene_tests.rs"]
+mod tests;
