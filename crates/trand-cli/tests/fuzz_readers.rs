@@ -531,3 +531,34 @@ fn toml_options_are_parsed_and_validated_without_panicking() {
         .run(&"[a-z_.=\\[\\] 0-9\n\"-]{0,200}", |s| read(&s))
         .unwrap();
 }
+
+#[test]
+fn render_cameras_reader_survives_arbitrary_and_mutated_files() {
+    let dir = ScratchDir::new("fuzz-cameras").unwrap();
+    let path = dir.path().join("cameras.json");
+    let valid = json!([{
+        "name": "wrist",
+        "K": [[600.0, 0.0, 319.5], [0.0, 600.0, 239.5], [0.0, 0.0, 1.0]],
+        "world_to_camera": [
+            [1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.5], [0.0, 0.0, 0.0, 1.0]
+        ],
+        "width": 640,
+        "height": 480
+    }]);
+    std::fs::write(&path, valid.to_string()).unwrap();
+    assert_eq!(trand_io::read_cameras_json(&path).unwrap().len(), 1);
+    let read = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).unwrap();
+        bounded(bytes.len(), || {
+            let _ = trand_io::read_cameras_json(&path);
+        })
+    };
+    runner(2000)
+        .run(&mutate_json(valid.clone()), |v| {
+            read(v.to_string().as_bytes())
+        })
+        .unwrap();
+    runner(1000)
+        .run(&mutate_bytes(valid.to_string().into_bytes()), |b| read(&b))
+        .unwrap();
+}

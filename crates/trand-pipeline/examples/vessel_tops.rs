@@ -34,7 +34,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for arg in std::env::args().skip(1) {
         let seq = trand_io::read_sequence(&arg)?;
         let (views, _, _) = train_views(&seq, &opts)?;
-        let (_, tops) = find_openings(&views, &opts)?;
+        let (openings, tops) = find_openings(&views, &opts)?;
+        for o in &openings {
+            println!(
+                "{arg} opening rim z {:.3} floor z {:.3} r {:.3}",
+                o.rim_z, o.floor_z, o.rim_radius
+            );
+        }
         let kinds = kinds(&seq.root);
         let b = openings_box(&views)?;
         let hull = object_voxels(&views, DVec3::from_array(b.min), DVec3::from_array(b.max));

@@ -514,6 +514,44 @@ fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape,
     }
 }
 
+/// The top of what the vessel stands on: the highest hull voxel, inside the rim's circle, of another
+/// object centred under the vessel (its voxels there average within [`MAX_LEANER_OFFSET`] rim radii of
+/// the axis) that reaches as low as the vessel's hull (to within a voxel) and ends below the rim. A
+/// stacked vessel's hull continues into its support as a cone (the masks cannot tell where one ends),
+/// so its wall seems to start below the support's top; carving from there would take the support's
+/// top and the vessel's own bottom away. `None` on the table: a neighbour's or a leaning object's
+/// voxels in the circle lie off-centre, an object nested inside does not reach below the vessel.
+fn support_top(
+    hull: &BTreeMap<u16, Vec<DVec3>>,
+    id: u16,
+    profile: &Profile,
+    axis: DVec2,
+    rim: (f64, f64),
+) -> Option<f64> {
+    let (rim_z, rim_radius) = rim;
+    hull.iter()
+        .filter(|(o, _)| **o != id)
+        .filter_map(|(_, vs)| {
+            let under: Vec<DVec3> = vs
+                .iter()
+                .filter(|p| (p.truncate() - axis).length() < rim_radius)
+                .copied()
+                .collect();
+            if under.len() <= MIN_VOXELS / 4 {
+                return None;
+            }
+            let centre =
+                under.iter().fold(DVec2::ZERO, |a, p| a + p.truncate()) / under.len() as f64;
+            let lowest = under.iter().fold(f64::INFINITY, |a, p| a.min(p.z));
+            let top = under.iter().fold(f64::NEG_INFINITY, |a, p| a.max(p.z)) + 0.5 * VOXEL_M;
+            ((centre - axis).length() < MAX_LEANER_OFFSET * rim_radius
+                && lowest <= profile.z0 + VOXEL_M
+                && top + FLOOR_M < rim_z)
+                .then_some(top)
+        })
+        .reduce(f64::max)
+}
+
 /// The lowest slice of `r` (a straight vessel's profile up to its rim slice `rim`) within
 /// [`RIM_TOLERANCE_M`] of the narrowest slice of its wall above [`HIDDEN_FOOT`].
 fn wall_start(r: &[f64], rim: usize) -> usize {
@@ -598,10 +636,13 @@ fn open_top(
         Shape::Straight => wall_start(&profile.radius[..=rim], rim),
         Shape::Bowl | Shape::Stemmed => 0,
     };
+    let floor_z = profile.slice_top(base) - VOXEL_M + FLOOR_M;
+    let floor_z = support_top(hull, id, &profile, axis, (rim_z, rim_radius))
+        .map_or(floor_z, |top| floor_z.max(top + FLOOR_M));
     Ok(Opening {
         shape,
         others: leaning.iter().map(|p| voxel_key(*p)).collect(),
-        floor_z: profile.slice_top(base) - VOXEL_M + FLOOR_M,
+        floor_z,
         rim_z,
         rim_radius,
         profile,

@@ -293,3 +293,52 @@ fn the_carved_region_is_the_inside_and_the_roof_but_not_the_wall_or_the_base() {
     assert!(!o.carves([0.0, 0.0, 0.002]), "base");
     assert!(!o.carves([0.08, 0.0, 0.05]), "outside");
 }
+
+#[test]
+fn a_stacked_vessel_is_carved_above_its_support_not_into_it() {
+    // An upturned tumbler (top at 9 cm) carrying an upright one: the upper one's hull reaches down
+    // into the support as a cone, but its carving starts above the support's top.
+    let support = solid([0.0, 0.0], 0.0, 0.09, |h| 0.034 - 0.004 * h / 0.09);
+    let on_top = solid([0.0, 0.0], 0.0905, 0.08, |h| 0.028 + 0.004 * h / 0.08);
+    let views = views(&[support, on_top]);
+    let hull = object_voxels(
+        &views,
+        DVec3::new(-0.2, -0.2, 0.0),
+        DVec3::new(0.2, 0.2, 0.2),
+    );
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+    let openings = classify(&hull, &cams, 0.2).0;
+    assert_eq!(openings.len(), 1, "only the upper tumbler is open");
+    let o = &openings[0];
+    assert!(
+        o.floor_z >= 0.09 && o.floor_z < 0.11,
+        "floor at {:.3} m: the support's top is at 0.090 m",
+        o.floor_z
+    );
+    assert!(o.carves([0.0, 0.0, 0.14]), "the upper tumbler's inside");
+    for z in [0.07, 0.085] {
+        assert!(!o.carves([0.0, 0.0, z]), "the support at {z} m");
+    }
+}
+
+#[test]
+fn a_neighbour_standing_close_does_not_raise_the_floor() {
+    // A tall bottle-like cylinder beside a tumbler on the table: some of its hull falls inside the
+    // tumbler's rim circle, off-centre; the tumbler is carved down to its own base.
+    let views = views(&[
+        tumbler([0.0, 0.0]),
+        solid([0.062, 0.0], 0.0, 0.14, |_| 0.028),
+    ]);
+    let hull = object_voxels(
+        &views,
+        DVec3::new(-0.2, -0.2, 0.0),
+        DVec3::new(0.2, 0.2, 0.2),
+    );
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+    let openings = classify(&hull, &cams, 0.2).0;
+    let o = openings
+        .iter()
+        .find(|o| o.rim_z < 0.1)
+        .expect("the tumbler is open");
+    assert!(o.floor_z < 0.02, "floor at {:.3} m", o.floor_z);
+}
