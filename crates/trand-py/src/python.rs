@@ -303,7 +303,7 @@ fn reconstruct(
         .collect::<PyResult<Vec<_>>>()?;
     let out = interrupt::run(py, |cancel| {
         let mut on_step = |r: &trand_pipeline::StepReport| {
-            if progress && (r.iteration % 10 == 0 || r.iteration == iterations) {
+            if progress && (r.iteration.is_multiple_of(10) || r.iteration == iterations) {
                 report_progress(&format!(
                     "trand: iteration {}/{iterations}  loss {:.4}  surfels {}",
                     r.iteration, r.loss, r.num_surfels
