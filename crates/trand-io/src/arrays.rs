@@ -83,9 +83,16 @@ pub fn camera_from_matrices(
     let t = [w2c[0][3], w2c[1][3], w2c[2][3]];
     let cam = Camera::new(intrinsics, r, t);
     cam.validate_intrinsics().map_err(|e| {
+        let bad_side = |s: u32| s == 0 || s > trand_core::camera::MAX_IMAGE_SIDE;
         let field = match e {
             trand_core::CameraError::EmptyImage { .. }
-            | trand_core::CameraError::ImageTooLarge { .. } => "width, height",
+            | trand_core::CameraError::ImageTooLarge { .. } => {
+                if bad_side(width) {
+                    "width"
+                } else {
+                    "height"
+                }
+            }
             _ => "K",
         };
         ArrayError::new(field, e.to_string())
@@ -240,7 +247,11 @@ mod tests {
         );
         assert_eq!(
             camera_from_matrices(&K, &W2C, 0, 12).unwrap_err().field,
-            "width, height"
+            "width"
+        );
+        assert_eq!(
+            camera_from_matrices(&K, &W2C, 16, 9000).unwrap_err().field,
+            "height"
         );
     }
 

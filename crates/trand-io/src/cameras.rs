@@ -18,16 +18,14 @@ use std::collections::HashSet;
 use std::path::Path;
 
 use serde_json::Value;
-use trand_core::{Camera, Intrinsics};
+use trand_core::Camera;
 
+use crate::arrays::camera_from_matrices;
 use crate::error::IoError;
 use crate::json::Obj;
-use crate::pose;
 
 /// The largest image side accepted (a guard against a typo allocating gigabytes).
 pub const MAX_SIDE: u32 = 16_384;
-/// How far the bottom row of `world_to_camera` may be from `[0, 0, 0, 1]`.
-const AFFINE_TOLERANCE: f64 = 1e-9;
 
 /// One camera of the list.
 #[derive(Clone, Debug, PartialEq)]
@@ -153,61 +151,15 @@ fn name(o: &Obj, seen: &mut HashSet<String>) -> Result<String, IoError> {
     Ok(n.to_string())
 }
 
-fn intrinsics(o: &Obj) -> Result<Intrinsics, IoError> {
+/// The camera of one entry: `K`, `world_to_camera`, `width` and `height`, checked by
+/// [`camera_from_matrices`] (the error names the entry's field).
+fn camera(o: &Obj) -> Result<Camera, IoError> {
     let k = matrix(o, "K", 3, 3)?;
-    if k[0][1] != 0.0 {
-        return Err(o.err("K[0][1]", "skew is not supported; it must be 0"));
-    }
-    if k[1][0] != 0.0 || k[2][0] != 0.0 || k[2][1] != 0.0 || k[2][2] != 1.0 {
-        return Err(o.err("K", "the bottom rows must be [0, fy, cy] and [0, 0, 1]"));
-    }
-    if k[0][0] <= 0.0 || k[1][1] <= 0.0 {
-        return Err(o.err(
-            "K",
-            format!(
-                "focal lengths fx = {}, fy = {} must be positive",
-                k[0][0], k[1][1]
-            ),
-        ));
-    }
-    Ok(Intrinsics {
-        fx: k[0][0],
-        fy: k[1][1],
-        cx: k[0][2],
-        cy: k[1][2],
-        width: side(o, "width")?,
-        height: side(o, "height")?,
-    })
-}
-
-fn camera(o: &Obj, k: Intrinsics) -> Result<Camera, IoError> {
     let m = matrix(o, "world_to_camera", 4, 4)?;
-    let bottom = [0.0, 0.0, 0.0, 1.0];
-    if m[3]
-        .iter()
-        .zip(bottom)
-        .any(|(a, b)| (a - b).abs() > AFFINE_TOLERANCE)
-    {
-        return Err(o.err(
-            "world_to_camera[3]",
-            format!("the bottom row must be [0, 0, 0, 1], found {:?}", m[3]),
-        ));
-    }
-    let r = [0, 1, 2].map(|i| [m[i][0], m[i][1], m[i][2]]);
-    let cam = pose::from_w2c(
-        k,
-        r,
-        [m[0][3], m[1][3], m[2][3]],
-        o.path,
-        &o.name("world_to_camera"),
-    )?;
-    if cam.rotation().determinant() < 0.0 {
-        return Err(o.err(
-            "world_to_camera",
-            "the rotation is a reflection (determinant −1); OpenCV axes are right-handed",
-        ));
-    }
-    Ok(cam)
+    let (width, height) = (side(o, "width")?, side(o, "height")?);
+    let k: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| k[i][j]));
+    let m: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[i][j]));
+    camera_from_matrices(&k, &m, width, height).map_err(|e| o.err(&e.field, e.reason))
 }
 
 /// Reads and checks a camera list.
@@ -234,7 +186,7 @@ pub fn read_cameras_json(path: &Path) -> Result<Vec<NamedCamera>, IoError> {
         .map(|(i, v)| {
             let o = Obj::element(path, format!("[{i}]"), v)?;
             let name = name(&o, &mut seen)?;
-            let camera = camera(&o, intrinsics(&o)?)?;
+            let camera = camera(&o)?;
             Ok(NamedCamera { name, camera })
         })
         .collect()
@@ -268,6 +220,7 @@ pub fn cameras_to_json(cams: &[NamedCamera]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use trand_core::Intrinsics;
 
     fn write(text: &str) -> (crate::ScratchDir, std::path::PathBuf) {
         let dir = crate::ScratchDir::new("cameras").unwrap();
