@@ -13,7 +13,7 @@ import pytest
 import trand
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def views(seq):
     t0 = seq["train_0"]
     return [list(t0["images"]), list(t0["masks"]), list(t0["intrinsics"]), list(t0["world_to_camera"])]
