@@ -28,7 +28,7 @@ use crate::error::IoError;
 use crate::write::write_atomic;
 
 /// Thickness of a surfel along its normal, relative to the geometric mean of its two scales.
-pub const THIN_RATIO: f32 = 1e-3;
+pub const THIN_RATIO: f64 = 1e-3;
 
 /// SH coefficients beyond DC per channel in the written file (degree 3).
 const REST: usize = 15;
@@ -49,7 +49,7 @@ pub fn splat_property_names() -> Vec<String> {
 
 /// The third log-scale given to a surfel with log-scales `ls` ([`THIN_RATIO`]).
 pub fn thin_log_scale(ls: [f32; 2]) -> f32 {
-    0.5 * (ls[0] + ls[1]) + THIN_RATIO.ln()
+    0.5 * (ls[0] + ls[1]) + THIN_RATIO.ln() as f32
 }
 
 /// Serialises surfels as a 3DGS PLY (the surfels must be consistent, `Surfels::validate`'s lengths).
