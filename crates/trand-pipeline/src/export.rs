@@ -10,12 +10,15 @@
 //!   renders. The TSDF voxel is the authors' `2·radius/256` with `radius` the distance of the virtual
 //!   cameras from the scene centre (TRAN-D's scene radius of the cameras that are fused), so the mesh
 //!   depends on the surfels alone, not on the sequence's cameras. Vertices take the id of the nearest
-//!   exported point; an object's mesh is the faces whose three vertices carry its id.
+//!   exported point; an object's mesh is the faces whose three vertices carry its id. Faces more than a
+//!   voxel outside the surfels' bounding box are dropped: they are the truncation band's extension of
+//!   walls under the objects, where no virtual view sees a surface.
 
 use trand_core::Surfels;
 use trand_core::math::{quat_to_rotmat, sigmoid};
 use trand_core::sh::dc_to_rgb;
 use trand_io::PointCloud;
+use trand_physics::TsdfSettings;
 use trand_render::RenderSettings;
 
 use crate::Result;
@@ -67,6 +70,25 @@ pub fn object_points(s: &Surfels, c: usize, min_opacity: f64) -> PointCloud {
         colors: idx.iter().map(|&i| dc_colour(s.sh_dc[i])).collect(),
         object_ids: None,
     }
+}
+
+/// The faces of `mesh` whose three vertices lie in the box `[lo − pad, hi + pad]` of the surfel
+/// centres: the fusion's truncation band extends walls a few voxels past the last surface it saw
+/// (below an object standing on the table, where no view looks), and that extension is not part of
+/// the scene.
+fn crop_to_surfels(mesh: &mut trand_physics::Mesh, s: &Surfels, pad: f32) {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for m in &s.means {
+        for a in 0..3 {
+            lo[a] = lo[a].min(m[a] - pad);
+            hi[a] = hi[a].max(m[a] + pad);
+        }
+    }
+    let inside = |v: &[f32; 3]| (0..3).all(|a| v[a] >= lo[a] && v[a] <= hi[a]);
+    let vertices = &mesh.vertices;
+    mesh.faces
+        .retain(|f| f.iter().all(|&v| inside(&vertices[v as usize])));
+    mesh.remove_unreferenced_vertices();
 }
 
 /// The faces of `mesh` whose three vertices are labelled `id`, with the unused vertices dropped.
@@ -125,6 +147,7 @@ pub fn export(
             settings,
             progress,
         )?;
+        crop_to_surfels(&mut mesh, surfels, TsdfSettings::tran_d(radius).voxel);
     }
     for o in &mut objects {
         o.mesh = io_mesh(&object_mesh(&mesh, o.id));
@@ -134,4 +157,137 @@ pub fn export(
         scene_points,
         scene_mesh: io_mesh(&mesh),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::test_scene::block;
+    use trand_core::sh::SH_C0;
+
+    /// Two boxes (ids 7 and 9 in channels 0 and 1); every 5th surfel faint, every 7th undecided
+    /// between the two channels.
+    fn scene() -> (Surfels, Vec<(u16, usize)>) {
+        let mut s = block(-0.09, -0.03, -0.03, 0.03, 0.06, 0);
+        s.append(&block(0.03, -0.03, 0.09, 0.03, 0.06, 1));
+        for i in 0..s.len() {
+            if i % 5 == 0 {
+                s.opacity_logits[i] = -5.0;
+            }
+            if i % 7 == 0 {
+                s.obj_logits[2 * i..2 * i + 2].copy_from_slice(&[1.0, 1.0]);
+            }
+        }
+        (s, vec![(7, 0), (9, 1)])
+    }
+
+    #[test]
+    fn exported_points_are_the_object_surfels() {
+        let (s, channels) = scene();
+        for &(_, c) in &channels {
+            let p = object_points(&s, c, DEFAULT_MIN_OPACITY);
+            let want: Vec<usize> = (0..s.len())
+                .filter(|&i| {
+                    let l = &s.obj_logits[2 * i..2 * i + 2];
+                    let prob = 1.0 / (1.0 + (l[1 - c] - l[c]).exp());
+                    prob > 0.5 && 1.0 / (1.0 + (-s.opacity_logits[i]).exp()) >= 0.05
+                })
+                .collect();
+            assert!(!want.is_empty());
+            assert_eq!(
+                p.positions,
+                want.iter().map(|&i| s.means[i]).collect::<Vec<_>>()
+            );
+            for (k, &i) in want.iter().enumerate() {
+                let q = glam::Quat::from_array([
+                    s.quats[i][1],
+                    s.quats[i][2],
+                    s.quats[i][3],
+                    s.quats[i][0],
+                ]);
+                let n = q * glam::Vec3::Z;
+                assert!((glam::Vec3::from(p.normals[k]) - n).length() < 1e-5);
+                let rgb = s.sh_dc[i].map(|d| ((0.5 + SH_C0 as f32 * d) * 255.0).round() as u8);
+                assert_eq!(p.colors[k], rgb);
+            }
+        }
+    }
+
+    #[test]
+    fn mesh_faces_index_existing_vertices_and_each_object_mesh_lies_on_its_surfels() {
+        let (s, channels) = scene();
+        let settings = RenderSettings::default();
+        let ex = export(
+            &s,
+            &channels,
+            DEFAULT_MIN_OPACITY,
+            &settings,
+            &mut |_, _, _| {},
+        )
+        .unwrap();
+        assert_eq!(ex.objects.len(), 2);
+        let ids = ex.scene_points.object_ids.as_ref().unwrap();
+        let mut total = 0;
+        for o in &ex.objects {
+            assert!(!o.mesh.faces.is_empty(), "object {}: empty mesh", o.id);
+            o.mesh.validate().unwrap();
+            assert!(
+                o.mesh
+                    .labels
+                    .as_ref()
+                    .unwrap()
+                    .iter()
+                    .all(|&l| l as u16 == o.id)
+            );
+            // Every mesh vertex lies within the fusion's truncation band of the object's surfels, and
+            // half of them within 1.5 voxels (the open-bottomed boxes are also seen from below, so
+            // their walls get an inner copy inside the band).
+            let own: Vec<glam::Vec3> = s
+                .means
+                .iter()
+                .map(|&m| glam::Vec3::from(m))
+                .filter(|m| (m.x < 0.0) == (o.id == 7))
+                .collect();
+            let ts = TsdfSettings::tran_d(virtual_view_ring(&s).1 as f32);
+            let mut d: Vec<f32> = o
+                .mesh
+                .vertices
+                .iter()
+                .map(|&v| {
+                    own.iter()
+                        .map(|&p| (glam::Vec3::from(v) - p).length())
+                        .fold(f32::INFINITY, f32::min)
+                })
+                .collect();
+            d.sort_by(f32::total_cmp);
+            let (median, max) = (d[d.len() / 2], d[d.len() - 1]);
+            assert!(
+                max < ts.trunc && median < 1.5 * ts.voxel,
+                "object {}: median {median}, max {max}, voxel {}",
+                o.id,
+                ts.voxel
+            );
+            assert_eq!(ids.iter().filter(|&&i| i == o.id).count(), o.points.len());
+            total += o.points.len();
+        }
+        assert_eq!(ex.scene_points.len(), total);
+        ex.scene_mesh.validate().unwrap();
+        let faces: usize = ex.objects.iter().map(|o| o.mesh.faces.len()).sum();
+        assert!(faces <= ex.scene_mesh.faces.len() && faces > ex.scene_mesh.faces.len() * 9 / 10);
+    }
+
+    #[test]
+    fn channels_without_an_object_id_are_not_exported() {
+        let (s, _) = scene();
+        let ex = export(
+            &s,
+            &[(0, 0), (4, 1), (5, 9)],
+            0.5,
+            &RenderSettings::default(),
+            &mut |_, _, _| {},
+        )
+        .unwrap();
+        let ids: Vec<u16> = ex.objects.iter().map(|o| o.id).collect();
+        assert_eq!(ids, [4]);
+    }
 }
