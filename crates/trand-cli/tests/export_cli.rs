@@ -37,6 +37,9 @@ struct Element {
     props: Vec<(String, String)>,
 }
 
+/// One point record: position, normal, colour, object id.
+type Point = ([f32; 3], [f32; 3], [u8; 3], Option<u16>);
+
 /// A binary PLY split into its header elements and the body of each element.
 struct Ply {
     elements: Vec<Element>,
@@ -138,7 +141,7 @@ impl Ply {
     }
 
     /// Point records of a point-cloud PLY: position, normal, colour, object id.
-    fn points(&self) -> Vec<([f32; 3], [f32; 3], [u8; 3], Option<u16>)> {
+    fn points(&self) -> Vec<Point> {
         let (e, body) = self.element("vertex");
         let with_id = e.props.len() == 10;
         let stride = if with_id { 29 } else { 27 };

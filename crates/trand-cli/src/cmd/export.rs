@@ -21,6 +21,13 @@ use trand_pipeline::export::{DEFAULT_MIN_OPACITY, export};
 use super::render::load_run;
 
 #[derive(clap::Args)]
+#[command(
+    after_help = "Writes OUT/object_ID.ply (points: x y z, nx ny nz, red green blue), \
+OUT/scene_points.ply (all objects, ushort object_id), OUT/object_ID_mesh.ply and OUT/mesh.ply \
+(TSDF-fused mesh, uchar label = object id), OUT/export.json (counts), and with --splats \
+OUT/splats.ply (3DGS layout). A surfel belongs to an object when the probability of the object's \
+channel is above 1/2."
+)]
 pub struct Args {
     /// A finished run folder (t=0 or t=1).
     #[arg(long)]
