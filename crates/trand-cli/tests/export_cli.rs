@@ -182,7 +182,7 @@ fn square(s: &mut Surfels, c: Vec3, normal: Vec3, channel: usize) {
 }
 
 /// A run folder by hand: two objects (ids 4 and 6 in channels 1 and 2), each a tent of two squares
-/// over the table.
+/// over the table; object 8 (channel 0) has no surfels, as one removed at t = 1.
 fn hand_made_run(dir: &Path) -> Surfels {
     let mut s = Surfels::new(1, 3).unwrap();
     for (x, c) in [(-0.06f32, 1), (0.06, 2)] {
@@ -198,7 +198,7 @@ fn hand_made_run(dir: &Path) -> Surfels {
     trand_io::write_surfels_ply(&dir.join("surfels.ply"), &s).unwrap();
     std::fs::write(
         dir.join("run.json"),
-        r#"{"state": "t0", "object_channels": [[4, 1], [6, 2]], "depth_clamp_m": null}"#,
+        r#"{"state": "t0", "object_channels": [[4, 1], [6, 2], [8, 0]], "depth_clamp_m": null}"#,
     )
     .unwrap();
     std::fs::write(
@@ -264,6 +264,10 @@ fn exported_points_meshes_and_splats_round_trip_a_hand_made_run() {
             (Some(n as u64), Some(faces.len() as u64))
         );
     }
+    assert!(
+        !dir.join("out/object_8.ply").exists() && summary["objects"].as_array().unwrap().len() == 2,
+        "an object without surfels is not exported"
+    );
     let scene = read_ply(&dir.join("out/scene_points.ply"));
     assert_eq!(scene.vertex_props().last().unwrap(), "object_id");
     let got: Vec<_> = scene.points().iter().map(|p| (p.0, p.3.unwrap())).collect();

@@ -176,10 +176,7 @@ mod tests {
                 get(col("scale_2")),
             );
             let ratio = (s2 - 0.5 * (s0 + s1)).exp();
-            assert!(
-                (ratio as f64 / THIN_RATIO - 1.0).abs() < 1e-4,
-                "{ratio}"
-            );
+            assert!((ratio as f64 / THIN_RATIO - 1.0).abs() < 1e-4, "{ratio}");
             // The written normal is the rotation's third column, unit length.
             let n = [get(col("nx")), get(col("ny")), get(col("nz"))];
             let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();

@@ -103,7 +103,8 @@ fn object_mesh(mesh: &trand_physics::Mesh, id: u16) -> trand_physics::Mesh {
     m
 }
 
-/// Points and meshes of every object in `channels` (the run's `(object id, channel)` pairs).
+/// Points and meshes of every object in `channels` (the run's `(object id, channel)` pairs) that has
+/// any: an object removed at t = 1 is left out.
 pub fn export(
     surfels: &Surfels,
     channels: &[(u16, usize)],
@@ -152,6 +153,8 @@ pub fn export(
     for o in &mut objects {
         o.mesh = io_mesh(&object_mesh(&mesh, o.id));
     }
+    // An object without surfels (one removed at t = 1) has nothing to export.
+    objects.retain(|o| !o.points.is_empty() || !o.mesh.faces.is_empty());
     Ok(Export {
         objects,
         scene_points,
