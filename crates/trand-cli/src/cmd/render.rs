@@ -88,11 +88,15 @@ fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> any
 /// Reads a run folder's surfels, render settings, far clamp and object channels.
 pub(crate) fn load_run(run: &Path) -> anyhow::Result<RunRender> {
     let json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let run_json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&json_path)
-            .with_context(|| format!("{}: not a run folder", run.display()))?,
-    )
-    .with_context(|| format!("{}: malformed JSON", json_path.display()))?;
+    let run_json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&json_path).with_context(|| {
+            format!(
+                "{}: not a run folder (cannot read {})",
+                run.display(),
+                json_path.display()
+            )
+        })?)
+        .with_context(|| format!("{}: malformed JSON", json_path.display()))?;
     let state: State = run_json["state"]
         .as_str()
         .and_then(|s| s.parse().ok())
