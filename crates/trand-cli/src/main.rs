@@ -24,6 +24,9 @@ enum Command {
     Bench(cmd::bench::Args),
     /// Generate a small scene, run t=0 and t=1, evaluate and write a report (a few minutes).
     Demo(cmd::demo::Args),
+    /// A finished run's objects as PLY: point clouds and meshes per object, and with --splats a 3DGS
+    /// file for splat viewers.
+    Export(cmd::export::Args),
     /// Version and machine facts.
     Info(cmd::info::Args),
     /// A copy of a sequence with perturbed training inputs (per-image ids, mask boundaries, missed
@@ -53,6 +56,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Demo(a) => cmd::demo::run(a),
+        Command::Export(a) => cmd::export::run(a),
         Command::Info(a) => cmd::info::run(a),
         Command::Perturb(a) => cmd::perturb::run(a),
         Command::Reconstruct(a) => cmd::reconstruct::run(a),

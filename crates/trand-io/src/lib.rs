@@ -6,7 +6,8 @@
 //!   `transforms_sparse_*.json`), [`nerfstudio`] (`transforms.json`). All cameras come out in trand's
 //!   convention (OpenCV axes, world-to-camera, metres, integer pixel centres; see `trand_core::camera`).
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
-//! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY.
+//! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY, [`points`]:
+//!   point-cloud PLY, [`splats`]: 3DGS PLY for splat viewers.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
 //! * [`arrays`]: cameras and sequences from in-memory arrays (a host program's images and poses).
 //! * [`output`]: checks of output folders before work starts, the marker of folders trand wrote, and
@@ -25,9 +26,11 @@ pub mod output;
 mod paths;
 pub mod perturb;
 pub mod ply;
+pub mod points;
 mod pose;
 pub mod run_layout;
 pub mod scratch;
+pub mod splats;
 pub mod transforms;
 pub mod view;
 pub mod write;
@@ -44,7 +47,9 @@ pub use image::{
 pub use mesh::{Mesh, write_mesh_ply};
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
+pub use points::{PointCloud, write_point_cloud_ply};
 pub use scratch::ScratchDir;
+pub use splats::write_splats_ply;
 pub use view::{
     Load, LoadOptions, Sequence, Split, State, TrainSelection, View, ViewCount, select_train_views,
 };

@@ -14,12 +14,14 @@
 //! * [`outputs`]: the run folder (surfels PLY, test-view depth, object maps, `run.json`).
 //! * [`at_cameras`]: a finished run's depth, object ids, alpha and normals at any camera.
 //! * [`run_folder`]: a finished run folder read back for rendering.
+//! * [`export`]: a finished run's objects as point clouds and meshes.
 
 pub mod associate;
 pub mod at_cameras;
 pub mod checkpoint;
 pub mod contact;
 pub mod detect;
+pub mod export;
 pub mod openings;
 pub mod outputs;
 pub mod reconstruct;

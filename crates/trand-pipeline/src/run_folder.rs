@@ -74,9 +74,14 @@ fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> Res
 /// Reads a run folder's surfels, render settings, far clamp and object channels.
 pub fn load_run(run: &Path) -> Result<RunRender> {
     let json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let bytes = std::fs::read(&json_path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => invalid(run, "not a run folder (no run.json)"),
-        _ => IoError::io(&json_path, e).into(),
+    let bytes = std::fs::read(&json_path).map_err(|e| {
+        invalid(
+            run,
+            format!(
+                "not a run folder (cannot read {}: {e})",
+                json_path.display()
+            ),
+        )
     })?;
     let run_json: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| invalid(&json_path, format!("malformed JSON: {e}")))?;

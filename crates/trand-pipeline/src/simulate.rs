@@ -40,8 +40,8 @@ pub enum SurfelMotion {
     RigidPerObject,
 }
 
-/// Probability of channel `c` for every surfel (softmax of its object logits).
-pub fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
+/// Probability of channel `c` for every surfel.
+pub(crate) fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
     let k = s.num_objects;
     let mut p = vec![0.0f32; k];
     (0..s.len())
@@ -52,18 +52,22 @@ pub fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
         .collect()
 }
 
-/// The virtual cameras of step 3 around the surfels' footprint.
-pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
+/// The centre of the surfels' bounding box and the distance of the virtual cameras from it: far
+/// enough that the whole footprint fits a 60°-wide view.
+pub fn virtual_view_ring(s: &Surfels) -> (DVec3, f64) {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for m in &s.means {
         let p = DVec3::new(m[0] as f64, m[1] as f64, m[2] as f64);
         lo = lo.min(p);
         hi = hi.max(p);
     }
-    let centre = (lo + hi) * 0.5;
     let size = (hi - lo).max_element().max(0.05);
-    // Far enough that the whole footprint fits a 60°-wide view.
-    let radius = (size * 1.2).max(0.3);
+    ((lo + hi) * 0.5, (size * 1.2).max(0.3))
+}
+
+/// The virtual cameras of step 3 around the surfels' footprint ([`virtual_view_ring`]).
+pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
+    let (centre, radius) = virtual_view_ring(s);
     let k = Intrinsics::centered(opts.virtual_focal, opts.virtual_width, opts.virtual_height);
     let els: Vec<f64> = opts
         .ring_elevations_deg
@@ -75,30 +79,29 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
     cams
 }
 
-/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
-/// count, the largest surfel displacement and the meshing and simulation times. Stops with
-/// [`PipelineError::Interrupted`] after the meshing view or simulated frame during which `cancel` was set.
-#[allow(clippy::too_many_arguments)]
-pub fn simulate(
-    surfels: &mut Surfels,
-    objects: &[(u16, usize)],
-    movable: &[u16],
-    scale: SceneScale,
+/// The surfels of object channel `c`: those whose probability of `c` is above ½ (the membership
+/// rule of the update, the contact test and `trand export`).
+pub fn channel_members(s: &Surfels, c: usize) -> Vec<u32> {
+    let p = channel_probs(s, c);
+    (0..s.len() as u32)
+        .filter(|&i| p[i as usize] > 0.5)
+        .collect()
+}
+
+/// Step 3: the depth of `surfels` rendered from [`virtual_cameras`], fused into a TSDF of
+/// [`TsdfSettings::tran_d`]`(radius)` over the surfels' bounds (never reaching more than a margin
+/// below the table, z = 0), meshed by marching cubes with small clusters removed, and each vertex
+/// labelled with the id of the nearest of `labelled` points (left unlabelled when there are none).
+pub fn fuse_mesh(
+    surfels: &Surfels,
+    radius: f32,
+    labelled: (&[[f32; 3]], &[u16]),
     opts: &UpdateOptions,
     settings: &RenderSettings,
     progress: &mut dyn FnMut(&str, u32, u32),
-    cancel: &AtomicBool,
-) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
-    let stop = || {
-        if cancel.load(Ordering::SeqCst) {
-            Err(PipelineError::Interrupted(0))
-        } else {
-            Ok(())
-        }
-    };
-    let t0 = Instant::now();
+) -> Result<trand_physics::Mesh> {
     let cams = virtual_cameras(surfels, opts);
-    let ts = TsdfSettings::tran_d(scale.radius.max(0.05));
+    let ts = TsdfSettings::tran_d(radius);
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
     for m in &surfels.means {
         for a in 0..3 {
@@ -130,28 +133,77 @@ pub fn simulate(
         tsdf.integrate(cam, &depth, ts.trunc, ts.max_depth)
             .map_err(|e| PipelineError::Invalid(format!("TSDF: {e}")))?;
         progress("meshing", i as u32 + 1, n_cams);
-        stop()?;
     }
     let mut mesh = tsdf.extract_mesh();
-    // Label vertices by the nearest object surfel.
+    let (pts, labels) = labelled;
+    if !mesh.vertices.is_empty() && !pts.is_empty() {
+        mesh.label_by_nearest(pts, labels)
+            .map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
+    }
+    Ok(mesh)
+}
+
+/// The mesh as written to PLY: vertex colours from the palette of each vertex's object id, ids above
+/// 255 (which the file's `uchar label` cannot hold) written as 255.
+pub fn io_mesh(mesh: &trand_physics::Mesh) -> trand_io::Mesh {
+    trand_io::Mesh {
+        vertices: mesh.vertices.clone(),
+        colors: mesh.labels.as_ref().map(|l| {
+            l.iter()
+                .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
+                .collect()
+        }),
+        labels: mesh
+            .labels
+            .as_ref()
+            .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
+        faces: mesh.faces.clone(),
+    }
+}
+
+/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
+/// count, the largest surfel displacement and the meshing and simulation times. Stops with
+/// [`PipelineError::Interrupted`] after the meshing or the simulated frame during which `cancel` was set.
+#[allow(clippy::too_many_arguments)]
+pub fn simulate(
+    surfels: &mut Surfels,
+    objects: &[(u16, usize)],
+    movable: &[u16],
+    scale: SceneScale,
+    opts: &UpdateOptions,
+    settings: &RenderSettings,
+    progress: &mut dyn FnMut(&str, u32, u32),
+    cancel: &AtomicBool,
+) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
+    let stop = || {
+        if cancel.load(Ordering::SeqCst) {
+            Err(PipelineError::Interrupted(0))
+        } else {
+            Ok(())
+        }
+    };
+    let t0 = Instant::now();
+    // Vertices are labelled by the nearest object surfel.
     let mut pts = Vec::new();
     let mut labels = Vec::new();
     let mut members: Vec<(u16, Vec<[f32; 3]>, Vec<u32>)> = Vec::new();
     for &(id, c) in objects {
-        let p = channel_probs(surfels, c);
-        let idx: Vec<u32> = (0..surfels.len() as u32)
-            .filter(|&i| p[i as usize] > 0.5)
-            .collect();
+        let idx = channel_members(surfels, c);
         let centres: Vec<[f32; 3]> = idx.iter().map(|&i| surfels.means[i as usize]).collect();
         pts.extend_from_slice(&centres);
         labels.extend(std::iter::repeat_n(id, centres.len()));
         members.push((id, centres, idx));
     }
-    if !mesh.vertices.is_empty() && !pts.is_empty() {
-        mesh.label_by_nearest(&pts, &labels)
-            .map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
-    }
+    let mesh = fuse_mesh(
+        surfels,
+        scale.radius.max(0.05),
+        (&pts, &labels),
+        opts,
+        settings,
+        progress,
+    )?;
     let meshing_s = t0.elapsed().as_secs_f64();
+    stop()?;
 
     let t1 = Instant::now();
     let objs: Vec<ObjectSurfels> = members
@@ -212,19 +264,7 @@ pub fn simulate(
         }
     }
     let simulation_s = t1.elapsed().as_secs_f64();
-    let io_mesh = trand_io::Mesh {
-        vertices: mesh.vertices.clone(),
-        colors: mesh.labels.as_ref().map(|l| {
-            l.iter()
-                .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
-                .collect()
-        }),
-        labels: mesh
-            .labels
-            .as_ref()
-            .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
-        faces: mesh.faces.clone(),
-    };
+    let io_mesh = io_mesh(&mesh);
     Ok((
         io_mesh,
         set.positions.len(),

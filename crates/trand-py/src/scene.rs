@@ -207,14 +207,9 @@ impl Scene {
                 )
             })?
             .1;
-        let p = trand_pipeline::simulate::channel_probs(&self.surfels, c);
-        Ok(self
-            .surfels
-            .means
-            .iter()
-            .zip(p)
-            .filter(|(_, p)| *p > 0.5)
-            .map(|(m, _)| *m)
+        Ok(trand_pipeline::simulate::channel_members(&self.surfels, c)
+            .into_iter()
+            .map(|i| self.surfels.means[i as usize])
             .collect())
     }
 

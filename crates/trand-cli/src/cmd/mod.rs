@@ -2,6 +2,7 @@
 pub mod bench;
 pub mod demo;
 pub mod eval;
+pub mod export;
 pub mod info;
 pub mod perturb;
 pub mod reconstruct;

@@ -19,7 +19,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use trand_io::Image;
 use trand_pipeline::at_cameras::{CameraMaps, render_at};
-use trand_pipeline::run_folder::load_run;
+// `trand export` reads run folders the same way.
+pub(crate) use trand_pipeline::run_folder::load_run;
 use trand_pipeline::targets::palette;
 
 #[derive(clap::Args)]
