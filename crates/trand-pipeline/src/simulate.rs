@@ -5,51 +5,17 @@
 use std::time::Instant;
 
 use glam::{DVec3, Quat};
-use trand_core::{Camera, Intrinsics, Surfels, math::softmax};
+use trand_core::{Camera, Intrinsics, Surfels};
 use trand_physics::{
     MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume, below_view, build_particles, ring_views,
 };
 use trand_render::{RenderSettings, render};
 
+use crate::surfel_ops::{channel_probs, turn};
 use crate::targets;
-use crate::update::{SceneScale, UpdateOptions};
+pub use crate::update_options::{MeshDepth, SurfelMotion};
+use crate::update_options::{SceneScale, UpdateOptions};
 use crate::{PipelineError, Result};
-
-/// Which depth of the rendered surfels feeds the TSDF.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum MeshDepth {
-    /// `Σ w z / α`: the authors' code (depth_ratio 0).
-    Expected,
-    /// The median depth (what evaluation uses).
-    Median,
-}
-
-/// Whether surfels also rotate with their particle.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SurfelMotion {
-    /// Centres only (the authors' release).
-    Translate,
-    /// Centres and orientation (polar rotation of the particle's deformation gradient).
-    TranslateRotate,
-    /// Each object moves rigidly by the best fit (Kabsch) of its surfels' particle displacements:
-    /// the simulation decides where an object falls, but the very soft material of the paper (it sags
-    /// by a third of its height under gravity) does not squash its shape.
-    RigidPerObject,
-}
-
-/// Probability of channel `c` for every surfel.
-pub(crate) fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
-    let k = s.num_objects;
-    let mut p = vec![0.0f32; k];
-    (0..s.len())
-        .map(|i| {
-            softmax(&s.obj_logits[i * k..(i + 1) * k], &mut p);
-            p[c]
-        })
-        .collect()
-}
 
 /// The virtual cameras of step 3 around the surfels' footprint.
 pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
@@ -261,12 +227,6 @@ fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
             surfels.means[i as usize][2] -= lowest;
         }
     }
-}
-
-/// A surfel orientation (stored `[w, x, y, z]`) turned by the rotation `r`: `r · q/|q|`.
-pub(crate) fn turn(r: Quat, q: [f32; 4]) -> [f32; 4] {
-    let q = r * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
-    [q.w, q.x, q.y, q.z]
 }
 
 #[cfg(test)]

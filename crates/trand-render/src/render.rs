@@ -9,7 +9,7 @@ use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
 use crate::labels::{ObjectSumGrads, ObjectSums};
 use crate::lanes::LANES;
-use crate::layout::{INT_CHANNELS, Layout};
+use crate::layout::{GeometryMaps, INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams, par_zeros};
 use crate::preprocess::{
     Proj, Retained, SurfelGradSlot, preprocess_backward_one, preprocess_retained, softmax_block,
@@ -45,18 +45,6 @@ impl Maps {
     pub fn objects(self) -> bool {
         matches!(self, Maps::RgbObjects | Maps::All)
     }
-}
-
-/// Whether the geometric maps (expected and median depth, normal, distortion) are rendered. Training
-/// on images alone (TRAN-D's default, with the 2DGS normal and distortion losses off) needs none of
-/// them; skipping their accumulation saves about a quarter of the forward kernel's arithmetic.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum GeometryMaps {
-    #[default]
-    Rendered,
-    /// Not rendered: `depth`, `median`, `normal` and `distortion` come back empty, and the backward pass
-    /// accepts no gradient for `median` or `distortion` (it would need their forward state).
-    Skipped,
 }
 
 /// Render settings.
