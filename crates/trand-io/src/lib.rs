@@ -8,6 +8,7 @@
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
 //! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
+//! * [`run_manifest`]: `run.json`, the typed record of a run folder.
 //! * [`output`]: checks of output folders before work starts, the marker of folders trand wrote, and
 //!   the clean-up of temporary folders left by killed runs.
 
@@ -25,6 +26,7 @@ pub mod perturb;
 pub mod ply;
 mod pose;
 pub mod run_layout;
+pub mod run_manifest;
 pub mod scratch;
 pub mod transforms;
 pub mod view;
@@ -41,6 +43,7 @@ pub use image::{
 pub use mesh::{Mesh, write_mesh_ply};
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
+pub use run_manifest::RunManifest;
 pub use scratch::ScratchDir;
 pub use view::{
     Load, LoadOptions, Sequence, Split, State, TrainSelection, View, ViewCount, select_train_views,

@@ -23,6 +23,8 @@ use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
+
+use super::{canonical, name_of};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
@@ -329,34 +331,43 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let renders = trand_pipeline::outputs::render_views(&rec.surfels, depth_views, &settings)?;
     let render_s = t_render.elapsed().as_secs_f64();
-    let run_json = serde_json::json!({
-        "state": "t0",
-        "method": opts.method,
-        "views": opts.views,
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
-        "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
-        "train_views": rec.train_views,
-        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(depth_views),
-        "depth_views": depth_at,
-        "object_channels": rec.channels,
-        "vessel_tops": rec.vessel_tops,
-        "identity": rec.identity,
-        "support_prior": { "mode": opts.support, "applied": rec.support_applied },
-        "timings": {
-            "preprocess_s": rec.preprocess_s,
-            "optimise_s": rec.optimise_s,
-            "total_s": rec.preprocess_s + rec.optimise_s,
-            "test_render_s": render_s,
-            "wall_s": t_all.elapsed().as_secs_f64(),
-        },
-        "initial_surfels": rec.initial_surfels,
-        "num_trained": rec.num_trained,
-        "num_surfels": rec.surfels.len(),
-        "loss_curve": rec.curve,
-        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
-        "threads": rayon::current_num_threads(),
-        "trand_version": env!("CARGO_PKG_VERSION"),
-    });
+    let mut run_json = trand_io::RunManifest {
+        state: Some("t0".into()),
+        method: Some(name_of(serde_json::json!(opts.method))),
+        views: Some(opts.views),
+        data: Some(canonical(&a.data)),
+        sequence_fingerprint: Some(trand_pipeline::outputs::sequence_fingerprint(&seq)),
+        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(depth_views))),
+        object_channels: Some(rec.channels.clone()),
+        timings: Some(
+            [
+                ("preprocess_s", rec.preprocess_s),
+                ("optimise_s", rec.optimise_s),
+                ("total_s", rec.preprocess_s + rec.optimise_s),
+                ("test_render_s", render_s),
+                ("wall_s", t_all.elapsed().as_secs_f64()),
+            ]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+        ),
+        num_surfels: Some(rec.surfels.len()),
+        loss_curve: Some(rec.curve.clone()),
+        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
+        threads: Some(rayon::current_num_threads()),
+        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
+        ..Default::default()
+    };
+    run_json
+        .detail("train_views", &rec.train_views)
+        .detail("depth_views", depth_at)
+        .detail("vessel_tops", &rec.vessel_tops)
+        .detail("identity", &rec.identity)
+        .detail(
+            "support_prior",
+            serde_json::json!({ "mode": opts.support, "applied": rec.support_applied }),
+        )
+        .detail("initial_surfels", rec.initial_surfels)
+        .detail("num_trained", rec.num_trained);
     let config = toml::to_string(&opts).context("serialising the configuration")?;
     phase.store(Phase::Writing as u8, Ordering::SeqCst);
     trand_pipeline::outputs::write_run(&a.out, &run_json, &config, &rec.surfels, &renders)?;

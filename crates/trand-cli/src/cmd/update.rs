@@ -6,9 +6,11 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{View, ViewCount, select_train_views};
+use trand_io::{State, View, ViewCount, select_train_views};
 use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
+
+use super::{canonical, name_of};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -153,17 +155,14 @@ fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
 pub fn run(a: Args) -> anyhow::Result<()> {
     let t_all = Instant::now();
     trand_io::output::check_new_output(&a.out)?;
-    let run_json_path = a.run.join("run.json");
-    let run_json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&run_json_path)
-            .with_context(|| format!("{}: not a run folder", a.run.display()))?,
-    )
-    .with_context(|| format!("{}: malformed JSON", run_json_path.display()))?;
-    if run_json["state"] != "t0" {
+    let run_json_path = a.run.join(trand_io::run_layout::RUN_JSON);
+    let run_json = trand_io::RunManifest::read(&a.run)?
+        .with_context(|| format!("{}: not a run folder (no run.json)", a.run.display()))?;
+    if run_json.state().ok().flatten() != Some(State::T0) {
         bail!(
             "{}: field `state` is {} but update needs a t0 run",
             run_json_path.display(),
-            run_json["state"]
+            serde_json::json!(run_json.state)
         );
     }
     let cfg_path = a.run.join("config.toml");
@@ -175,9 +174,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     ropts
         .validate()
         .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
-    let channels: Vec<(u16, usize)> =
-        serde_json::from_value(run_json["object_channels"].clone())
-            .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
+    let channels = run_json.object_channels.clone().with_context(|| {
+        format!(
+            "{}: field `object_channels` is missing",
+            run_json_path.display()
+        )
+    })?;
     let ply_path = a.run.join("surfels.ply");
     let surfels = trand_io::read_surfels_ply(&ply_path)?;
     surfels
@@ -200,12 +202,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
     let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
     let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
-    if run_json["sequence_fingerprint"].as_str() != Some(fp.as_str()) {
+    if run_json.sequence_fingerprint.as_deref() != Some(fp.as_str()) {
         bail!(
             "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
             a.run.display(),
             a.data.display(),
-            run_json["sequence_fingerprint"]
+            serde_json::json!(run_json.sequence_fingerprint)
         );
     }
     let view = new_view(&a, &seq)?;
@@ -226,7 +228,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
     opts.identity = a.identity.unwrap_or(opts.identity);
     // A segmenter whose t = 0 ids needed association numbers the new image on its own as well.
-    let t0_associated = run_json["identity"]["used"].as_str() == Some("overlap");
+    let t0_associated = run_json.identity_used() == Some("overlap");
     if opts.identity == Identity::Auto && t0_associated {
         opts.identity = Identity::Overlap;
     }
@@ -292,46 +294,59 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let renders = trand_pipeline::outputs::render_views(&up.surfels, &seq.test_t1, &settings)?;
     let total =
         up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
-    let out_json = serde_json::json!({
-        "state": "t1",
-        "method": ropts.method,
-        "views": ropts.views,
-        "t0_run": a.run.canonicalize().unwrap_or(a.run.clone()).to_string_lossy(),
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
-        "sequence_fingerprint": fp,
-        "new_image": view.name,
-        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t1),
-        "object_channels": channels,
-        "matching": up.matches,
-        "removed": up.removed,
-        "removed_by": if opts.removed.is_some() { "user" } else { "detection" },
-        "identity": up.identity,
-        "identity_from_t0": t0_associated,
-        "relocalise": opts.relocalise,
-        "relocations": up.relocations,
-        "movable": up.movable,
-        "deleted_surfels": up.deleted_surfels,
-        "num_particles": up.num_particles,
-        "max_surfel_displacement_m": up.max_displacement_m,
-        "physics": opts.physics,
-        "motion": opts.motion,
-        "refine": opts.refine,
-        "timings": {
-            "detection_s": up.detection_s,
-            "meshing_s": up.meshing_s,
-            "simulation_s": up.simulation_s,
-            "relocalisation_s": up.relocalisation_s,
-            "refinement_s": up.refinement_s,
-            "total_s": total,
-            "test_render_s": t_render.elapsed().as_secs_f64(),
-            "wall_s": t_all.elapsed().as_secs_f64(),
-        },
-        "num_surfels": up.surfels.len(),
-        "loss_curve": up.curve,
-        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
-        "threads": rayon::current_num_threads(),
-        "trand_version": env!("CARGO_PKG_VERSION"),
-    });
+    let mut out_json = trand_io::RunManifest {
+        state: Some("t1".into()),
+        method: Some(name_of(serde_json::json!(ropts.method))),
+        views: Some(ropts.views),
+        data: Some(canonical(&a.data)),
+        sequence_fingerprint: Some(fp),
+        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(&seq.test_t1))),
+        object_channels: Some(channels),
+        timings: Some(
+            [
+                ("detection_s", up.detection_s),
+                ("meshing_s", up.meshing_s),
+                ("simulation_s", up.simulation_s),
+                ("relocalisation_s", up.relocalisation_s),
+                ("refinement_s", up.refinement_s),
+                ("total_s", total),
+                ("test_render_s", t_render.elapsed().as_secs_f64()),
+                ("wall_s", t_all.elapsed().as_secs_f64()),
+            ]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+        ),
+        num_surfels: Some(up.surfels.len()),
+        loss_curve: Some(up.curve.clone()),
+        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
+        threads: Some(rayon::current_num_threads()),
+        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
+        ..Default::default()
+    };
+    out_json
+        .detail("t0_run", canonical(&a.run))
+        .detail("new_image", &view.name)
+        .detail("matching", &up.matches)
+        .detail("removed", &up.removed)
+        .detail(
+            "removed_by",
+            if opts.removed.is_some() {
+                "user"
+            } else {
+                "detection"
+            },
+        )
+        .detail("identity", up.identity)
+        .detail("identity_from_t0", t0_associated)
+        .detail("relocalise", opts.relocalise)
+        .detail("relocations", &up.relocations)
+        .detail("movable", &up.movable)
+        .detail("deleted_surfels", up.deleted_surfels)
+        .detail("num_particles", up.num_particles)
+        .detail("max_surfel_displacement_m", up.max_displacement_m)
+        .detail("physics", opts.physics)
+        .detail("motion", opts.motion)
+        .detail("refine", opts.refine);
     let mut cfg = toml::to_string(&opts).context("serialising the configuration")?;
     if ropts.method == Method::Plain2dgs {
         cfg.insert_str(0, "# plain-2dgs run: no object channels, so no detection and no physics; refinement only\n");
