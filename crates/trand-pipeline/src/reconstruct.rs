@@ -28,11 +28,18 @@ use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
 
 /// Which of the paper's methods to run.
+///
+/// The plain 2DGS baseline is written `plain2dgs` in `config.toml` and `run.json` (the name runs have
+/// always recorded) and is also read as `plain-2dgs`, the name the command line, `trand bench` and
+/// the README use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     Trand,
     NoObjectLoss,
+    #[serde(alias = "plain-2dgs")]
+    #[cfg_attr(feature = "clap", value(name = "plain2dgs", alias = "plain-2dgs"))]
     Plain2dgs,
 }
 
@@ -47,6 +54,7 @@ impl Method {
 
 /// How the initial surfels are placed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum InitMode {
     /// The authors' random slab (points in the volume and on the four side faces).
@@ -57,6 +65,7 @@ pub enum InitMode {
 
 /// What is done about the tops of open vessels (see [`crate::openings`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum OpeningPrior {
     /// Surfels are kept out of the opening of every object the hull shows to be an upright

@@ -13,6 +13,7 @@ use crate::{PipelineError, Result};
 
 /// Which depth of the rendered surfels feeds the TSDF.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum MeshDepth {
     /// `Σ w z / α`: the authors' code (depth_ratio 0).
@@ -22,21 +23,31 @@ pub enum MeshDepth {
 }
 
 /// Whether surfels also rotate with their particle.
+///
+/// One name per value in TOML, JSON and on the command line (`translate-rotate`,
+/// `rigid-per-object`); the command line's former short names `rotate` and `rigid` are aliases
+/// everywhere.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum SurfelMotion {
     /// Centres only (the authors' release).
     Translate,
     /// Centres and orientation (polar rotation of the particle's deformation gradient).
+    #[serde(alias = "rotate")]
+    #[cfg_attr(feature = "clap", value(alias = "rotate"))]
     TranslateRotate,
     /// Each object moves rigidly by the best fit (Kabsch) of its surfels' particle displacements:
     /// the simulation decides where an object falls, but the very soft material of the paper (it sags
     /// by a third of its height under gravity) does not squash its shape.
+    #[serde(alias = "rigid")]
+    #[cfg_attr(feature = "clap", value(alias = "rigid"))]
     RigidPerObject,
 }
 
 /// A stage that can be switched off for the ablations.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Stage {
     On,

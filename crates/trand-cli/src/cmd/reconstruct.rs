@@ -38,8 +38,8 @@ pub struct Args {
     /// Training views: 3, 6 (the paper) or 12 ring views.
     #[arg(long)]
     pub views: Option<u32>,
-    /// trand, no-object-loss (ablation) or plain-2dgs (baseline).
-    #[arg(long, value_parser = parse_method)]
+    /// trand, no-object-loss (ablation) or plain2dgs (alias plain-2dgs; baseline).
+    #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// TOML file with any of the options (see `config.toml` of a finished run for every key).
     #[arg(long)]
@@ -52,11 +52,11 @@ pub struct Args {
     #[arg(long)]
     pub downsample: Option<u32>,
     /// Initialisation: visual-hull (default) or slab (the authors' random slab).
-    #[arg(long, value_parser = parse_init)]
+    #[arg(long, value_enum)]
     pub init: Option<InitMode>,
     /// Open vessels: carve (default: keep surfels out of the openings of upright tumblers, mugs,
     /// bowls and wine glasses, so their inside is fitted instead of a lid) or off.
-    #[arg(long, value_parser = parse_openings)]
+    #[arg(long, value_enum)]
     pub openings: Option<OpeningPrior>,
     /// Instance ids of the training masks: auto (default: used as they are unless they disagree with
     /// the geometry, then associated), ids (one id per object in every view, as a tracker gives) or
@@ -66,7 +66,7 @@ pub struct Args {
     /// Support prior: auto (default: on when the training views span less than 30 degrees), on or
     /// off. Keeps the initial surfels where the table under them is hidden behind an object in every
     /// view, which pins the depth a narrow baseline leaves open.
-    #[arg(long, value_parser = parse_support)]
+    #[arg(long, value_enum)]
     pub support: Option<SupportPrior>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
@@ -78,43 +78,6 @@ pub struct Args {
     pub checkpoint_every: u32,
 }
 
-fn parse_openings(s: &str) -> Result<OpeningPrior, String> {
-    match s {
-        "carve" => Ok(OpeningPrior::Carve),
-        "off" => Ok(OpeningPrior::Off),
-        _ => Err(format!("unknown opening prior `{s}` (carve, off)")),
-    }
-}
-
-fn parse_support(s: &str) -> Result<SupportPrior, String> {
-    match s {
-        "auto" => Ok(SupportPrior::Auto),
-        "on" => Ok(SupportPrior::On),
-        "off" => Ok(SupportPrior::Off),
-        _ => Err(format!("unknown support prior `{s}` (auto, on, off)")),
-    }
-}
-
-fn parse_method(s: &str) -> Result<Method, String> {
-    match s {
-        "trand" => Ok(Method::Trand),
-        "no-object-loss" => Ok(Method::NoObjectLoss),
-        "plain-2dgs" => Ok(Method::Plain2dgs),
-        _ => Err(format!(
-            "unknown method `{s}` (trand, no-object-loss, plain-2dgs)"
-        )),
-    }
-}
-
-fn parse_init(s: &str) -> Result<InitMode, String> {
-    match s {
-        "visual-hull" => Ok(InitMode::VisualHull),
-        "slab" => Ok(InitMode::Slab),
-        _ => Err(format!("unknown init `{s}` (visual-hull, slab)")),
-    }
-}
-
-/// Options from the config file, then the flags.
 pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     let mut o = match &a.config {
         Some(p) => {

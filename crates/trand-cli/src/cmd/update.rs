@@ -30,15 +30,15 @@ pub struct Args {
     #[arg(long, requires = "image")]
     pub mask: Option<PathBuf>,
     /// Physics simulation: on (default) or off (the "without simulation" ablation).
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub physics: Option<Stage>,
     /// Single-image refinement: on (default) or off ("physics only").
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub refine: Option<Stage>,
     /// Relocalisation after the simulation: on (default) searches the resting poses of the objects the
     /// simulation could move (and of any whose silhouette misses its mask) against the new image's
     /// mask and colours; off keeps the simulated pose.
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub relocalise: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
     #[arg(long, num_args = 1..)]
@@ -49,40 +49,16 @@ pub struct Args {
     #[arg(long, value_enum)]
     pub identity: Option<Identity>,
     /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
-    #[arg(long, value_parser = parse_depth)]
+    #[arg(long, value_enum)]
     pub mesh_depth: Option<MeshDepth>,
-    /// How surfels follow the simulation: translate (each with its particle, the paper), rotate (also
-    /// turn by the particle's polar rotation) or rigid (each object by the best rigid fit of its particles).
-    #[arg(long, value_parser = parse_motion)]
+    /// How surfels follow the simulation: translate (each with its particle, the paper),
+    /// translate-rotate (alias rotate: also turn by the particle's polar rotation) or
+    /// rigid-per-object (alias rigid, the default: each object by the best rigid fit of its particles).
+    #[arg(long, value_enum)]
     pub motion: Option<SurfelMotion>,
     /// TOML file with any of the update options.
     #[arg(long)]
     pub config: Option<PathBuf>,
-}
-
-fn parse_stage(s: &str) -> Result<Stage, String> {
-    match s {
-        "on" => Ok(Stage::On),
-        "off" => Ok(Stage::Off),
-        _ => Err(format!("`{s}`: expected on or off")),
-    }
-}
-
-fn parse_motion(s: &str) -> Result<SurfelMotion, String> {
-    match s {
-        "translate" => Ok(SurfelMotion::Translate),
-        "rotate" => Ok(SurfelMotion::TranslateRotate),
-        "rigid" => Ok(SurfelMotion::RigidPerObject),
-        _ => Err(format!("`{s}`: expected translate, rotate or rigid")),
-    }
-}
-
-fn parse_depth(s: &str) -> Result<MeshDepth, String> {
-    match s {
-        "expected" => Ok(MeshDepth::Expected),
-        "median" => Ok(MeshDepth::Median),
-        _ => Err(format!("`{s}`: expected `expected` or `median`")),
-    }
 }
 
 fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
