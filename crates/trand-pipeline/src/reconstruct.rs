@@ -209,12 +209,18 @@ fn view_count(n: u32) -> Result<ViewCount> {
 /// `(object id, channel)` pairs.
 pub type Channels = Vec<(u16, usize)>;
 
+/// The t = 0 training views with the object channels they are supervised in.
+#[derive(Clone, Debug)]
+pub struct TrainViews {
+    pub views: Vec<TrainView>,
+    pub channels: Channels,
+    /// How the masks' ids were taken.
+    pub identity: IdentityReport,
+}
+
 /// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
 /// [`Identity`]; with `Auto`, associated only when the ids disagree with the geometry).
-pub fn train_views(
-    seq: &Sequence,
-    opts: &ReconstructOptions,
-) -> Result<(Vec<TrainView>, Channels, IdentityReport)> {
+pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainViews> {
     let mut chosen = match seq.train_selection {
         TrainSelection::Ring => select_train_views(&seq.train_t0, view_count(opts.views)?),
         TrainSelection::Listed => seq.train_t0.clone(),
@@ -263,7 +269,11 @@ pub fn train_views(
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok((views, channels, report))
+    Ok(TrainViews {
+        views,
+        channels,
+        identity: report,
+    })
 }
 
 /// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
@@ -575,7 +585,11 @@ pub fn reconstruct_from(
 ) -> Result<Reconstruction> {
     opts.validate()?;
     let t0 = Instant::now();
-    let (views, channels, identity) = train_views(seq, opts)?;
+    let TrainViews {
+        views,
+        channels,
+        identity,
+    } = train_views(seq, opts)?;
     let (openings, vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {

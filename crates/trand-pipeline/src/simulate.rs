@@ -40,8 +40,19 @@ pub fn virtual_cameras(s: &Surfels, opts: &UpdateOptions) -> Vec<Camera> {
     cams
 }
 
-/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
-/// count, the largest surfel displacement and the meshing and simulation times.
+/// What [`simulate`] made besides the moved surfels.
+#[derive(Clone, Debug)]
+pub struct Simulation {
+    /// The TSDF mesh, vertices labelled by object.
+    pub mesh: trand_io::Mesh,
+    pub num_particles: usize,
+    /// The largest distance a surfel centre moved (metres).
+    pub max_displacement_m: f32,
+    pub meshing_s: f64,
+    pub simulation_s: f64,
+}
+
+/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
     surfels: &mut Surfels,
@@ -51,7 +62,7 @@ pub fn simulate(
     opts: &UpdateOptions,
     settings: &RenderSettings,
     progress: &mut dyn FnMut(&str, u32, u32),
-) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
+) -> Result<Simulation> {
     let t0 = Instant::now();
     let cams = virtual_cameras(surfels, opts);
     let ts = TsdfSettings::tran_d(scale.radius.max(0.05));
@@ -176,13 +187,13 @@ pub fn simulate(
             .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
         faces: mesh.faces.clone(),
     };
-    Ok((
-        io_mesh,
-        set.positions.len(),
-        max_disp,
+    Ok(Simulation {
+        mesh: io_mesh,
+        num_particles: set.positions.len(),
+        max_displacement_m: max_disp,
         meshing_s,
         simulation_s,
-    ))
+    })
 }
 
 /// Moves the surfels `idx` (simulated positions in `surfels.means`, previous ones in `before`) by

@@ -27,7 +27,7 @@ use trand_render::{GeometryMaps, Maps, RenderSettings};
 
 pub use crate::detect::{Identity, Match, detect};
 use crate::relocalise::{NewImage, Object, Relocation, relocalise};
-pub use crate::simulate::{simulate, virtual_cameras};
+pub use crate::simulate::{Simulation, simulate, virtual_cameras};
 use crate::surfel_ops::channel_probs;
 use crate::targets::{self, Supervision};
 use crate::trainer::{StepReport, Trainer};
@@ -147,7 +147,7 @@ pub fn update(
     let unmoved = relocalising.then(|| surfels.clone());
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
-            let (m, n, d, a, b) = simulate(
+            let s = simulate(
                 &mut surfels,
                 &remaining,
                 &movable,
@@ -156,7 +156,13 @@ pub fn update(
                 &settings,
                 progress,
             )?;
-            (Some(m), n, d, a, b)
+            (
+                Some(s.mesh),
+                s.num_particles,
+                s.max_displacement_m,
+                s.meshing_s,
+                s.simulation_s,
+            )
         } else {
             (None, 0, 0.0, 0.0, 0.0)
         };
