@@ -46,7 +46,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 use trand_core::Camera;
-use trand_eval::hungarian;
+use trand_core::matching::hungarian;
 use trand_io::View;
 
 use crate::{PipelineError, Result};

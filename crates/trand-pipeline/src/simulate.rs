@@ -181,10 +181,7 @@ pub fn simulate(
                 .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
                 .collect()
         }),
-        labels: mesh
-            .labels
-            .as_ref()
-            .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
+        labels: mesh.labels.clone(),
         faces: mesh.faces.clone(),
     };
     Ok(Simulation {

@@ -145,7 +145,7 @@ impl SceneScale {
     /// The scale of a t = 0 run trained on `cameras`.
     pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
         let extent = crate::trainer::camera_extent(cameras);
-        let radius = trand_physics::focus_point(cameras)
+        let radius = trand_core::camera::focus_point(cameras)
             .map(|f| {
                 cameras
                     .iter()
