@@ -1,7 +1,7 @@
 //! `trand update`: the t = 1 scene update of a t = 0 run from one new image (see
 //! `trand_pipeline::update` for the stages).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -128,12 +128,18 @@ fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
     Ok(v)
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
-    let t_all = Instant::now();
-    trand_io::output::check_new_output(&a.out)?;
-    let run_json_path = a.run.join(trand_io::run_layout::RUN_JSON);
-    let run_json = trand_io::RunManifest::read(&a.run)?
-        .with_context(|| format!("{}: not a run folder (no run.json)", a.run.display()))?;
+/// A t = 0 run folder, checked: its manifest, configuration, object channels and surfels.
+struct T0Run {
+    manifest: trand_io::RunManifest,
+    options: ReconstructOptions,
+    channels: Vec<(u16, usize)>,
+    surfels: trand_core::Surfels,
+}
+
+fn load_t0_run(run: &Path) -> anyhow::Result<T0Run> {
+    let run_json_path = run.join(trand_io::run_layout::RUN_JSON);
+    let run_json = trand_io::RunManifest::read(&run)?
+        .with_context(|| format!("{}: not a run folder (no run.json)", run.display()))?;
     if run_json.state().ok().flatten() != Some(State::T0) {
         bail!(
             "{}: field `state` is {} but update needs a t0 run",
@@ -141,7 +147,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             serde_json::json!(run_json.state)
         );
     }
-    let cfg_path = a.run.join("config.toml");
+    let cfg_path = run.join("config.toml");
     let ropts: ReconstructOptions = toml::from_str(
         &std::fs::read_to_string(&cfg_path)
             .with_context(|| format!("reading {}", cfg_path.display()))?,
@@ -156,7 +162,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             run_json_path.display()
         )
     })?;
-    let ply_path = a.run.join("surfels.ply");
+    let ply_path = run.join("surfels.ply");
     let surfels = trand_io::read_surfels_ply(&ply_path)?;
     surfels
         .validate()
@@ -176,18 +182,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         })?;
     }
 
-    let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
-    let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
-    if run_json.sequence_fingerprint.as_deref() != Some(fp.as_str()) {
-        bail!(
-            "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
-            a.run.display(),
-            a.data.display(),
-            serde_json::json!(run_json.sequence_fingerprint)
-        );
-    }
-    let view = new_view(&a, &seq)?;
+    Ok(T0Run {
+        manifest: run_json,
+        options: ropts,
+        channels,
+        surfels,
+    })
+}
 
+/// The update options: the `--config` file's (or the defaults), then the flags; the identity rule
+/// follows the t = 0 run's when left on auto. Also whether the t = 0 masks needed association.
+fn update_options(
+    a: &Args,
+    run_json: &trand_io::RunManifest,
+    ropts: &ReconstructOptions,
+) -> anyhow::Result<(UpdateOptions, bool)> {
     let mut opts = match &a.config {
         Some(p) => toml::from_str::<UpdateOptions>(
             &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
@@ -216,6 +225,109 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     opts.train.background = ropts.train.background;
     opts.train.sh_degree = ropts.train.sh_degree;
     opts.train.near = ropts.train.near;
+    Ok((opts, t0_associated))
+}
+
+/// What the t = 1 manifest records besides the update's result.
+struct T1Record<'a> {
+    seq: &'a trand_io::Sequence,
+    fingerprint: String,
+    view: &'a View,
+    channels: Vec<(u16, usize)>,
+    t0_associated: bool,
+    render_s: f64,
+    wall_s: f64,
+}
+
+/// `run.json` of the t = 1 run.
+fn t1_manifest(
+    a: &Args,
+    ropts: &ReconstructOptions,
+    opts: &UpdateOptions,
+    up: &trand_pipeline::update::Update,
+    t1: T1Record<'_>,
+) -> trand_io::RunManifest {
+    let total =
+        up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
+    let mut out_json = trand_io::RunManifest {
+        state: Some("t1".into()),
+        method: Some(name_of(serde_json::json!(ropts.method))),
+        views: Some(ropts.views),
+        data: Some(canonical(&a.data)),
+        sequence_fingerprint: Some(t1.fingerprint),
+        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(&t1.seq.test_t1))),
+        object_channels: Some(t1.channels),
+        timings: Some(
+            [
+                ("detection_s", up.detection_s),
+                ("meshing_s", up.meshing_s),
+                ("simulation_s", up.simulation_s),
+                ("relocalisation_s", up.relocalisation_s),
+                ("refinement_s", up.refinement_s),
+                ("total_s", total),
+                ("test_render_s", t1.render_s),
+                ("wall_s", t1.wall_s),
+            ]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+        ),
+        num_surfels: Some(up.surfels.len()),
+        loss_curve: Some(up.curve.clone()),
+        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
+        threads: Some(rayon::current_num_threads()),
+        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
+        ..Default::default()
+    };
+    out_json
+        .detail("t0_run", canonical(&a.run))
+        .detail("new_image", &t1.view.name)
+        .detail("matching", &up.matches)
+        .detail("removed", &up.removed)
+        .detail(
+            "removed_by",
+            if opts.removed.is_some() {
+                "user"
+            } else {
+                "detection"
+            },
+        )
+        .detail("identity", up.identity)
+        .detail("identity_from_t0", t1.t0_associated)
+        .detail("relocalise", opts.relocalise)
+        .detail("relocations", &up.relocations)
+        .detail("movable", &up.movable)
+        .detail("deleted_surfels", up.deleted_surfels)
+        .detail("num_particles", up.num_particles)
+        .detail("max_surfel_displacement_m", up.max_displacement_m)
+        .detail("physics", opts.physics)
+        .detail("motion", opts.motion)
+        .detail("refine", opts.refine);
+    out_json
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    trand_io::output::check_new_output(&a.out)?;
+    let T0Run {
+        manifest: run_json,
+        options: ropts,
+        channels,
+        surfels,
+    } = load_t0_run(&a.run)?;
+
+    let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
+    let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
+    if run_json.sequence_fingerprint.as_deref() != Some(fp.as_str()) {
+        bail!(
+            "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
+            a.run.display(),
+            a.data.display(),
+            serde_json::json!(run_json.sequence_fingerprint)
+        );
+    }
+    let view = new_view(&a, &seq)?;
+
+    let (opts, t0_associated) = update_options(&a, &run_json, &ropts)?;
 
     // The t = 0 scene extent, for densification at t = 1 (notes §10 row 7).
     let vc = match ropts.views {
@@ -270,59 +382,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let renders = trand_pipeline::outputs::render_views(&up.surfels, &seq.test_t1, &settings)?;
     let total =
         up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
-    let mut out_json = trand_io::RunManifest {
-        state: Some("t1".into()),
-        method: Some(name_of(serde_json::json!(ropts.method))),
-        views: Some(ropts.views),
-        data: Some(canonical(&a.data)),
-        sequence_fingerprint: Some(fp),
-        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(&seq.test_t1))),
-        object_channels: Some(channels),
-        timings: Some(
-            [
-                ("detection_s", up.detection_s),
-                ("meshing_s", up.meshing_s),
-                ("simulation_s", up.simulation_s),
-                ("relocalisation_s", up.relocalisation_s),
-                ("refinement_s", up.refinement_s),
-                ("total_s", total),
-                ("test_render_s", t_render.elapsed().as_secs_f64()),
-                ("wall_s", t_all.elapsed().as_secs_f64()),
-            ]
-            .map(|(k, v)| (k.to_string(), v))
-            .into(),
-        ),
-        num_surfels: Some(up.surfels.len()),
-        loss_curve: Some(up.curve.clone()),
-        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
-        threads: Some(rayon::current_num_threads()),
-        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
-        ..Default::default()
+    let t1 = T1Record {
+        seq: &seq,
+        fingerprint: fp,
+        view: &view,
+        channels,
+        t0_associated,
+        render_s: t_render.elapsed().as_secs_f64(),
+        wall_s: t_all.elapsed().as_secs_f64(),
     };
-    out_json
-        .detail("t0_run", canonical(&a.run))
-        .detail("new_image", &view.name)
-        .detail("matching", &up.matches)
-        .detail("removed", &up.removed)
-        .detail(
-            "removed_by",
-            if opts.removed.is_some() {
-                "user"
-            } else {
-                "detection"
-            },
-        )
-        .detail("identity", up.identity)
-        .detail("identity_from_t0", t0_associated)
-        .detail("relocalise", opts.relocalise)
-        .detail("relocations", &up.relocations)
-        .detail("movable", &up.movable)
-        .detail("deleted_surfels", up.deleted_surfels)
-        .detail("num_particles", up.num_particles)
-        .detail("max_surfel_displacement_m", up.max_displacement_m)
-        .detail("physics", opts.physics)
-        .detail("motion", opts.motion)
-        .detail("refine", opts.refine);
+    let out_json = t1_manifest(&a, &ropts, &opts, &up, t1);
     let mut cfg = toml::to_string(&opts).context("serialising the configuration")?;
     if ropts.method == Method::Plain2dgs {
         cfg.insert_str(0, "# plain-2dgs run: no object channels, so no detection and no physics; refinement only\n");
