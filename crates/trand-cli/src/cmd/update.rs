@@ -138,7 +138,7 @@ struct T0Run {
 
 fn load_t0_run(run: &Path) -> anyhow::Result<T0Run> {
     let run_json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let run_json = trand_io::RunManifest::read(&run)?
+    let run_json = trand_io::RunManifest::read(run)?
         .with_context(|| format!("{}: not a run folder (no run.json)", run.display()))?;
     if run_json.state().ok().flatten() != Some(State::T0) {
         bail!(
