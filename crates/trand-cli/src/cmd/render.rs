@@ -17,7 +17,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use trand_io::{Image, LoadOptions, State, read_sequence_with};
+use trand_io::{Image, LoadOptions, RunManifest, State, read_sequence_with};
 use trand_pipeline::at_cameras::{CameraMaps, render_at};
 use trand_pipeline::targets::palette;
 
@@ -56,20 +56,11 @@ fn toml_f64(cfg: &toml::Value, path: &Path, key: &str) -> anyhow::Result<f64> {
 
 /// The far clamp the run used: `run.json`'s `depth_clamp_m` (null = none), or for runs written before
 /// it was recorded, recomputed from the test cameras of the sequence the run names.
-fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> anyhow::Result<f32> {
-    match run_json.get("depth_clamp_m") {
-        Some(serde_json::Value::Null) => return Ok(f32::INFINITY),
-        Some(v) => {
-            return v.as_f64().map(|c| c as f32).with_context(|| {
-                format!(
-                    "{}: field `depth_clamp_m` is not a number",
-                    json_path.display()
-                )
-            });
-        }
-        None => {}
+fn clamp_of(run_json: &RunManifest, state: State, json_path: &Path) -> anyhow::Result<f32> {
+    if let Some(clamp) = run_json.depth_clamp_m {
+        return Ok(clamp.unwrap_or(f32::INFINITY));
     }
-    let data = run_json["data"].as_str().with_context(|| {
+    let data = run_json.data.as_deref().with_context(|| {
         format!(
             "{}: neither `depth_clamp_m` nor `data` (the sequence) is recorded",
             json_path.display()
@@ -88,22 +79,24 @@ fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> any
 /// Reads a run folder's surfels, render settings, far clamp and object channels.
 pub(crate) fn load_run(run: &Path) -> anyhow::Result<RunRender> {
     let json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let run_json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&json_path).with_context(|| {
-            format!(
-                "{}: not a run folder (cannot read {})",
-                run.display(),
-                json_path.display()
-            )
-        })?)
-        .with_context(|| format!("{}: malformed JSON", json_path.display()))?;
-    let state: State = run_json["state"]
-        .as_str()
-        .and_then(|s| s.parse().ok())
+    let run_json = RunManifest::read(run)?.with_context(|| {
+        format!(
+            "{}: not a run folder (no {})",
+            run.display(),
+            json_path.display()
+        )
+    })?;
+    let state: State = run_json
+        .state()
+        .ok()
+        .flatten()
         .with_context(|| format!("{}: field `state` must be t0 or t1", json_path.display()))?;
-    let channels: Vec<(u16, usize)> =
-        serde_json::from_value(run_json["object_channels"].clone())
-            .with_context(|| format!("{}: field `object_channels`", json_path.display()))?;
+    let channels = run_json.object_channels.clone().with_context(|| {
+        format!(
+            "{}: field `object_channels` is missing",
+            json_path.display()
+        )
+    })?;
     let cfg_path = run.join("config.toml");
     let cfg: toml::Value = toml::from_str(
         &std::fs::read_to_string(&cfg_path)
