@@ -46,12 +46,6 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     alloc::keep_freed_pages();
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
-        )
-        .with_writer(std::io::stderr)
-        .init();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Bench(a) => cmd::bench::run(a),
@@ -93,7 +87,61 @@ fn error_message(e: &anyhow::Error) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::error_message;
+    use clap::Parser;
+    use trand_pipeline::Method;
+    use trand_pipeline::associate::Identity;
+    use trand_pipeline::update::SurfelMotion;
+
+    use super::{Cli, Command, error_message};
+
+    fn update_args(extra: &[&str]) -> super::cmd::update::Args {
+        let base = ["trand", "update", "--run", "r", "--data", "d", "--out", "o"];
+        match Cli::try_parse_from(base.iter().chain(extra))
+            .unwrap()
+            .command
+        {
+            Command::Update(a) => a,
+            _ => unreachable!("an update command"),
+        }
+    }
+
+    #[test]
+    fn flag_values_are_the_toml_names_and_the_old_spellings_still_parse() {
+        for (flag, want) in [
+            ("translate-rotate", SurfelMotion::TranslateRotate),
+            ("rotate", SurfelMotion::TranslateRotate),
+            ("rigid-per-object", SurfelMotion::RigidPerObject),
+            ("rigid", SurfelMotion::RigidPerObject),
+            ("translate", SurfelMotion::Translate),
+        ] {
+            assert_eq!(update_args(&["--motion", flag]).motion, Some(want));
+            let toml: SurfelMotion = serde_json::from_value(serde_json::json!(flag)).unwrap();
+            assert_eq!(toml, want, "{flag} in a config file");
+        }
+        for (flag, want) in [
+            ("ids", Identity::ObjectIds),
+            ("object-ids", Identity::ObjectIds),
+        ] {
+            assert_eq!(update_args(&["--identity", flag]).identity, Some(want));
+        }
+        for name in ["plain2dgs", "plain-2dgs"] {
+            let base = [
+                "trand",
+                "reconstruct",
+                "--data",
+                "d",
+                "--out",
+                "o",
+                "--method",
+                name,
+            ];
+            let Command::Reconstruct(a) = Cli::try_parse_from(base).unwrap().command else {
+                unreachable!("a reconstruct command")
+            };
+            assert_eq!(a.method, Some(Method::Plain2dgs));
+        }
+        assert!(Cli::try_parse_from(["trand", "update", "--motion", "spin"]).is_err());
+    }
 
     #[test]
     fn error_messages_print_their_source_once() {

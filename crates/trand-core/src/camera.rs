@@ -240,6 +240,41 @@ impl Camera {
     }
 }
 
+/// The point the cameras look at: the least-squares point closest to every optical axis,
+/// `argmin_p Σ |(I − d dᵀ)(p − o)|²` over the centres `o` and unit forward directions `d` (the
+/// 2DGS / TRAN-D `focus_point_fn`).
+///
+/// When the axes do not determine it (all nearly parallel: the normal matrix's determinant below
+/// `1e-6·n³`), the mean of the axes' intersections with the table plane z = 0 stands in: cameras
+/// that all look the same way still look at the table, and a point on it beats no point (the
+/// scene radius and slab box that follow stay finite). `None` without cameras, or when no axis
+/// looks down onto the table either.
+pub fn focus_point(cameras: &[Camera]) -> Option<DVec3> {
+    if cameras.is_empty() {
+        return None;
+    }
+    let mut a = DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for c in cameras {
+        let d = c.forward().normalize();
+        let proj = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += proj;
+        b += proj * c.center();
+    }
+    // Well conditioned when the axes span at least two directions; relative threshold on the determinant.
+    if a.determinant().abs() > 1e-6 * (cameras.len() as f64).powi(3) {
+        return Some(a.inverse() * b);
+    }
+    let hits: Vec<DVec3> = cameras
+        .iter()
+        .filter_map(|c| {
+            let (o, d) = (c.center(), c.forward());
+            (d.z < -1e-9).then(|| o + d * (-o.z / d.z))
+        })
+        .collect();
+    (!hits.is_empty()).then(|| hits.iter().copied().sum::<DVec3>() / hits.len() as f64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

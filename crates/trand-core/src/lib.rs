@@ -6,8 +6,10 @@
 //! * [`real`]: a tiny scalar trait so numeric kernels run in `f32` for speed and in `f64` for
 //!   finite-difference tests, from one source.
 //! * [`math`]: activations and quaternion helpers.
+//! * [`matching`]: mask IoU and the Hungarian assignment.
 
 pub mod camera;
+pub mod matching;
 pub mod math;
 pub mod real;
 pub mod sh;

@@ -5,15 +5,13 @@
 //! * [`run`]: the `trand eval` contract (a run folder of `.npy` depths → `metrics.json`).
 //! * [`objects`]: the same metrics per GT object and pooled per object kind (`bowl (upright)`, …),
 //!   with [`kind_label`], the one rule for that label.
-//! * [`matching`]: mask [`iou`] and rectangular [`hungarian`] assignment, for matching objects across
-//!   the scene change.
+//! * [`iou`] and [`hungarian`]: re-exported from `trand_core::matching`, where the pipeline uses them
+//!   too.
 
-pub mod matching;
 pub mod metrics;
 pub mod objects;
 pub mod run;
 
-pub use matching::{hungarian, iou};
 pub use metrics::{
     Counts, EvalError, Metrics, PAPER_COLUMNS, PIXEL_SET_NOTE, THRESHOLDS_M, ViewCounts, evaluate,
     mean_over_sequences, paper_cells, table,
@@ -25,3 +23,4 @@ pub use objects::{
 pub use run::{
     RunEvalError, RunEvaluation, evaluate_run, evaluate_run_detailed, prediction_path, run_state,
 };
+pub use trand_core::matching::{hungarian, iou};

@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use trand_io::{
-    IoError, Load, LoadOptions, Split, State, read_npy_f32, read_sequence_with, run_layout,
+    IoError, Load, LoadOptions, RunManifest, Split, State, read_npy_f32, read_sequence_with,
+    run_layout,
 };
 
 use crate::metrics::{EvalError, Metrics, evaluate};
@@ -48,29 +49,13 @@ pub enum RunEvalError {
 
 /// The state recorded in `RUN/run.json`, if any.
 pub fn run_state(run: &Path) -> Result<Option<State>, RunEvalError> {
-    let path = run.join(run_layout::RUN_JSON);
-    if !path.is_file() {
+    let Some(manifest) = RunManifest::read(run)? else {
         return Ok(None);
-    }
-    let text = std::fs::read_to_string(&path).map_err(|source| IoError::Io {
-        path: path.clone(),
-        source,
-    })?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|source| IoError::Json {
-        path: path.clone(),
-        source,
-    })?;
-    match v.get("state") {
-        None | Some(serde_json::Value::Null) => Ok(None),
-        Some(serde_json::Value::String(s)) => s
-            .parse()
-            .map(Some)
-            .map_err(|reason| RunEvalError::RunState { path, reason }),
-        Some(other) => Err(RunEvalError::RunState {
-            path,
-            reason: format!("expected \"t0\" or \"t1\", found {other}"),
-        }),
-    }
+    };
+    manifest.state().map_err(|reason| RunEvalError::RunState {
+        path: run.join(run_layout::RUN_JSON),
+        reason,
+    })
 }
 
 /// Path of the predicted depth of a frame (see [`trand_io::run_layout`]).

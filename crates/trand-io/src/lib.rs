@@ -10,6 +10,7 @@
 //!   point-cloud PLY, [`splats`]: 3DGS PLY for splat viewers.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
 //! * [`arrays`]: cameras and sequences from in-memory arrays (a host program's images and poses).
+//! * [`run_manifest`]: `run.json`, the typed record of a run folder.
 //! * [`output`]: checks of output folders before work starts, the marker of folders trand wrote, and
 //!   the clean-up of temporary folders left by killed runs.
 
@@ -29,6 +30,7 @@ pub mod ply;
 pub mod points;
 mod pose;
 pub mod run_layout;
+pub mod run_manifest;
 pub mod scratch;
 pub mod splats;
 pub mod transforms;
@@ -48,6 +50,7 @@ pub use mesh::{Mesh, write_mesh_ply};
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
 pub use points::{PointCloud, write_point_cloud_ply};
+pub use run_manifest::RunManifest;
 pub use scratch::ScratchDir;
 pub use splats::write_splats_ply;
 pub use view::{

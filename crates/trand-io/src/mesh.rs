@@ -1,6 +1,7 @@
 //! Triangle meshes as binary little-endian PLY: vertices (`float x y z`), optional per-vertex colour
-//! (`uchar red green blue`) and label (`uchar label`, e.g. an object id), and faces
-//! (`list uchar int vertex_indices`). Readable by MeshLab, Open3D and Blender.
+//! (`uchar red green blue`) and label (an object id: `uchar label` when every label fits a byte,
+//! else `ushort label`), and faces (`list uchar int vertex_indices`). Readable by MeshLab, Open3D and
+//! Blender.
 
 use std::path::Path;
 
@@ -12,7 +13,8 @@ use crate::write::write_atomic;
 pub struct Mesh {
     pub vertices: Vec<[f32; 3]>,
     pub colors: Option<Vec<[u8; 3]>>,
-    pub labels: Option<Vec<u8>>,
+    /// Object id per vertex.
+    pub labels: Option<Vec<u16>>,
     pub faces: Vec<[u32; 3]>,
 }
 
@@ -59,8 +61,13 @@ pub fn mesh_to_ply_bytes(m: &Mesh) -> Vec<u8> {
     if m.colors.is_some() {
         out.extend_from_slice(b"property uchar red\nproperty uchar green\nproperty uchar blue\n");
     }
+    let wide = m.labels.iter().flatten().any(|&l| l > u8::MAX as u16);
     if m.labels.is_some() {
-        out.extend_from_slice(b"property uchar label\n");
+        out.extend_from_slice(if wide {
+            b"property ushort label\n"
+        } else {
+            b"property uchar label\n"
+        });
     }
     out.extend_from_slice(
         format!(
@@ -75,8 +82,10 @@ pub fn mesh_to_ply_bytes(m: &Mesh) -> Vec<u8> {
         if let Some(c) = &m.colors {
             out.extend_from_slice(&c[i]);
         }
-        if let Some(l) = &m.labels {
-            out.push(l[i]);
+        match &m.labels {
+            Some(l) if wide => out.extend_from_slice(&l[i].to_le_bytes()),
+            Some(l) => out.push(l[i] as u8),
+            None => {}
         }
     }
     for f in &m.faces {

@@ -175,6 +175,25 @@ fn surfel_ply_file_round_trip_and_no_temp_file_left() {
 }
 
 #[test]
+fn mesh_labels_above_255_are_written_as_ushort_not_truncated() {
+    let m = Mesh {
+        vertices: vec![[0.0; 3]; 2],
+        colors: None,
+        labels: Some(vec![3, 300]),
+        faces: Vec::new(),
+    };
+    let b = trand_io::mesh::mesh_to_ply_bytes(&m);
+    let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    assert!(
+        std::str::from_utf8(&b[..end])
+            .unwrap()
+            .contains("property ushort label\n")
+    );
+    assert_eq!(&b[end + 12..end + 14], &3u16.to_le_bytes());
+    assert_eq!(&b[end + 26..end + 28], &300u16.to_le_bytes());
+}
+
+#[test]
 fn mesh_ply_has_header_counts_and_exact_body_length() {
     let m = Mesh {
         vertices: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],

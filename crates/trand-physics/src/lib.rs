@@ -23,4 +23,4 @@ pub use particles::{
     InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles,
 };
 pub use tsdf::{TsdfError, TsdfSettings, TsdfVolume};
-pub use virtual_views::{below_view, focus_point, ring_views, scene_radius};
+pub use virtual_views::{below_view, ring_views, scene_radius};

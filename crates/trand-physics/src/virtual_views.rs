@@ -7,6 +7,7 @@
 //! camera from below.
 
 use glam::{DMat3, DVec3};
+use trand_core::camera::focus_point;
 use trand_core::{Camera, Intrinsics};
 
 /// Cameras on rings around `center` (world z up): for each elevation (radians above the
@@ -47,20 +48,6 @@ pub fn below_view(center: DVec3, radius: f64, intrinsics: Intrinsics) -> Camera 
     Camera::from_glam(intrinsics, r_w2c, -(r_w2c * eye))
 }
 
-/// Least-squares point closest to all optical axes, `argmin_p Σ |(I − d dᵀ)(p − o)|²` over the
-/// cameras' centres `o` and forward directions `d` (the 2DGS/TRAN-D `focus_point_fn`). `None`
-/// when the axes are all parallel (the normal matrix is singular) or there are no cameras.
-pub fn focus_point(cameras: &[Camera]) -> Option<DVec3> {
-    let (mut a, mut b) = (DMat3::ZERO, DVec3::ZERO);
-    for c in cameras {
-        let d = c.forward();
-        let m = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += m;
-        b += m * c.center();
-    }
-    (a.determinant().abs() > 1e-12).then(|| a.inverse() * b)
-}
-
 /// Smallest distance of a camera centre to [`focus_point`]: TRAN-D's scene radius, from which
 /// the fusion depth range (2·radius) and voxel size (2·radius / 256) follow.
 pub fn scene_radius(cameras: &[Camera]) -> Option<f64> {
@@ -81,7 +68,11 @@ mod tests {
         let cams = ring_views(c, 0.7, &[0.4, 0.8], 6, Intrinsics::centered(300.0, 64, 64));
         assert!((focus_point(&cams).unwrap() - c).length() < 1e-9);
         assert!((scene_radius(&cams).unwrap() - 0.7).abs() < 1e-9);
-        assert!(focus_point(&cams[..1]).is_none());
+        // One camera: its axis meets the table, the focus point's fallback.
+        let one = focus_point(&cams[..1]).unwrap();
+        assert!(
+            one.z.abs() < 1e-9 && (one - cams[0].center()).cross(cams[0].forward()).length() < 1e-9
+        );
     }
 
     #[test]

@@ -33,7 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let opts = ReconstructOptions::default();
     for arg in std::env::args().skip(1) {
         let seq = trand_io::read_sequence(&arg)?;
-        let (views, _, _) = train_views(&seq, &opts)?;
+        let views = train_views(&seq, &opts)?.views;
         let (openings, tops) = find_openings(&views, &opts)?;
         for o in &openings {
             println!(

@@ -46,7 +46,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 use trand_core::Camera;
-use trand_eval::hungarian;
+use trand_core::matching::hungarian;
 use trand_io::View;
 
 use crate::{PipelineError, Result};
@@ -83,7 +83,7 @@ pub enum Identity {
     /// The ids name the same object in every view (a tracker carried them over; BOP masks are named
     /// by object id). At t = 1 an object whose id is absent was removed.
     #[serde(rename = "ids", alias = "object-ids")]
-    #[cfg_attr(feature = "clap", value(name = "ids"))]
+    #[cfg_attr(feature = "clap", value(name = "ids", alias = "object-ids"))]
     ObjectIds,
     /// Per-image ids: associate by overlap (t = 0: voxel votes; t = 1: IoU and centroid of the
     /// rendered t = 0 objects, Hungarian).

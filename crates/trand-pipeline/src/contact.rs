@@ -15,7 +15,7 @@ use std::collections::HashMap;
 
 use trand_core::Surfels;
 
-use crate::simulate::channel_probs;
+use crate::surfel_ops::channel_probs;
 
 /// Largest centre distance of two surfels of objects in contact (m): surfels sit on the surfaces,
 /// a few millimetres apart, and glass walls in contact are a wall's thickness apart at most.

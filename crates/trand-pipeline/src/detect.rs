@@ -14,7 +14,7 @@
 //! training masks, since the same segmenter made the new mask.
 
 use trand_core::Surfels;
-use trand_eval::{hungarian, iou};
+use trand_core::matching::{hungarian, iou};
 use trand_io::View;
 use trand_render::{Maps, RenderSettings, render};
 

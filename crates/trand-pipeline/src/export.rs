@@ -240,7 +240,7 @@ mod tests {
                     .as_ref()
                     .unwrap()
                     .iter()
-                    .all(|&l| l as u16 == o.id)
+                    .all(|&l| l == o.id)
             );
             // Every mesh vertex lies within the fusion's truncation band of the object's surfels, and
             // half of them within 1.5 voxels (the open-bottomed boxes are also seen from below, so

@@ -29,11 +29,13 @@ pub mod relocalise;
 pub mod run_folder;
 pub mod simulate;
 pub mod support;
+mod surfel_ops;
 pub mod targets;
 #[cfg(test)]
 mod test_scene;
 pub mod trainer;
 pub mod update;
+pub mod update_options;
 
 pub use reconstruct::{InitMode, Method, ReconstructOptions, Reconstruction, reconstruct};
 pub use targets::{Supervision, TrainView};

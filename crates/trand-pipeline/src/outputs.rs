@@ -17,7 +17,7 @@ use std::path::Path;
 
 use trand_core::Surfels;
 use trand_io::{
-    DepthMap, Image, RunDir, View, write_depth_png_mm, write_npy_f32, write_rgb_png,
+    DepthMap, Image, RunDir, RunManifest, View, write_depth_png_mm, write_npy_f32, write_rgb_png,
     write_surfels_ply,
 };
 use trand_render::RenderSettings;
@@ -79,7 +79,7 @@ pub fn render_views(
 /// Writes a complete run folder at `target` (which must not exist).
 pub fn write_run(
     target: &Path,
-    run_json: &serde_json::Value,
+    run_json: &RunManifest,
     config_toml: &str,
     surfels: &Surfels,
     renders: &[TestRender],
@@ -90,7 +90,7 @@ pub fn write_run(
 /// [`write_run`] plus extra files written by `extra` into the (temporary) folder before the commit.
 pub fn write_run_with(
     target: &Path,
-    run_json: &serde_json::Value,
+    run_json: &RunManifest,
     config_toml: &str,
     surfels: &Surfels,
     renders: &[TestRender],
@@ -108,8 +108,7 @@ pub fn write_run_with(
         write_rgb_png(&p.join(format!("objects/{:06}.png", r.frame)), &r.objects)?;
     }
     trand_io::write_atomic(&p.join("config.toml"), config_toml.as_bytes())?;
-    let json = serde_json::to_vec_pretty(run_json).expect("JSON values serialise");
-    trand_io::write_atomic(&p.join(trand_io::run_layout::RUN_JSON), &json)?;
+    trand_io::write_atomic(&p.join(trand_io::run_layout::RUN_JSON), &run_json.to_json())?;
     extra(p)?;
     dir.commit()?;
     Ok(())

@@ -28,11 +28,18 @@ use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
 
 /// Which of the paper's methods to run.
+///
+/// The plain 2DGS baseline is written `plain2dgs` in `config.toml` and `run.json` (the name runs have
+/// always recorded) and is also read as `plain-2dgs`, the name the command line, `trand bench` and
+/// the README use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     Trand,
     NoObjectLoss,
+    #[serde(alias = "plain-2dgs")]
+    #[cfg_attr(feature = "clap", value(name = "plain2dgs", alias = "plain-2dgs"))]
     Plain2dgs,
 }
 
@@ -47,6 +54,7 @@ impl Method {
 
 /// How the initial surfels are placed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum InitMode {
     /// The authors' random slab (points in the volume and on the four side faces).
@@ -57,6 +65,7 @@ pub enum InitMode {
 
 /// What is done about the tops of open vessels (see [`crate::openings`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum OpeningPrior {
     /// Surfels are kept out of the opening of every object the hull shows to be an upright
@@ -200,12 +209,18 @@ fn view_count(n: u32) -> Result<ViewCount> {
 /// `(object id, channel)` pairs.
 pub type Channels = Vec<(u16, usize)>;
 
+/// The t = 0 training views with the object channels they are supervised in.
+#[derive(Clone, Debug)]
+pub struct TrainViews {
+    pub views: Vec<TrainView>,
+    pub channels: Channels,
+    /// How the masks' ids were taken.
+    pub identity: IdentityReport,
+}
+
 /// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
 /// [`Identity`]; with `Auto`, associated only when the ids disagree with the geometry).
-pub fn train_views(
-    seq: &Sequence,
-    opts: &ReconstructOptions,
-) -> Result<(Vec<TrainView>, Channels, IdentityReport)> {
+pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainViews> {
     let mut chosen = match seq.train_selection {
         TrainSelection::Ring => select_train_views(&seq.train_t0, view_count(opts.views)?),
         TrainSelection::Listed => seq.train_t0.clone(),
@@ -254,7 +269,11 @@ pub fn train_views(
             )
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok((views, channels, report))
+    Ok(TrainViews {
+        views,
+        channels,
+        identity: report,
+    })
 }
 
 /// The box the visual hull is searched in: under the cameras' focus, tall enough for stacked
@@ -566,7 +585,11 @@ pub fn reconstruct_from(
 ) -> Result<Reconstruction> {
     opts.validate()?;
     let t0 = Instant::now();
-    let (views, channels, identity) = train_views(seq, opts)?;
+    let TrainViews {
+        views,
+        channels,
+        identity,
+    } = train_views(seq, opts)?;
     let (openings, vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {

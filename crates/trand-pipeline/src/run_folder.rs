@@ -8,7 +8,7 @@
 
 use std::path::Path;
 
-use trand_io::{IoError, LoadOptions, State, read_sequence_with};
+use trand_io::{IoError, LoadOptions, RunManifest, State, read_sequence_with};
 use trand_render::RenderSettings;
 
 use crate::{PipelineError, Result};
@@ -23,7 +23,7 @@ pub struct RunRender {
     pub channels: Vec<(u16, usize)>,
     pub state: State,
     /// The whole `run.json`.
-    pub run_json: serde_json::Value,
+    pub run_json: RunManifest,
     /// The whole `config.toml`.
     pub config: toml::Value,
 }
@@ -44,18 +44,11 @@ fn train_number(cfg: &toml::Value, path: &Path, key: &str) -> Result<f64> {
 
 /// The far clamp the run used: `run.json`'s `depth_clamp_m` (null = none), or for runs written before
 /// it was recorded, recomputed from the test cameras of the sequence the run names.
-fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> Result<f32> {
-    match run_json.get("depth_clamp_m") {
-        Some(serde_json::Value::Null) => return Ok(f32::INFINITY),
-        Some(v) => {
-            return v
-                .as_f64()
-                .map(|c| c as f32)
-                .ok_or_else(|| invalid(json_path, "field `depth_clamp_m` is not a number"));
-        }
-        None => {}
+fn clamp_of(run_json: &RunManifest, state: State, json_path: &Path) -> Result<f32> {
+    if let Some(clamp) = run_json.depth_clamp_m {
+        return Ok(clamp.unwrap_or(f32::INFINITY));
     }
-    let data = run_json["data"].as_str().ok_or_else(|| {
+    let data = run_json.data.as_deref().ok_or_else(|| {
         invalid(
             json_path,
             "neither `depth_clamp_m` nor `data` (the sequence) is recorded",
@@ -74,24 +67,21 @@ fn clamp_of(run_json: &serde_json::Value, state: State, json_path: &Path) -> Res
 /// Reads a run folder's surfels, render settings, far clamp and object channels.
 pub fn load_run(run: &Path) -> Result<RunRender> {
     let json_path = run.join(trand_io::run_layout::RUN_JSON);
-    let bytes = std::fs::read(&json_path).map_err(|e| {
+    let run_json = RunManifest::read(run)?.ok_or_else(|| {
         invalid(
             run,
-            format!(
-                "not a run folder (cannot read {}: {e})",
-                json_path.display()
-            ),
+            format!("not a run folder (no {})", json_path.display()),
         )
     })?;
-    let run_json: serde_json::Value = serde_json::from_slice(&bytes)
-        .map_err(|e| invalid(&json_path, format!("malformed JSON: {e}")))?;
-    let state: State = run_json["state"]
-        .as_str()
-        .and_then(|s| s.parse().ok())
+    let state: State = run_json
+        .state()
+        .ok()
+        .flatten()
         .ok_or_else(|| invalid(&json_path, "field `state` must be t0 or t1"))?;
-    let channels: Vec<(u16, usize)> =
-        serde_json::from_value(run_json["object_channels"].clone())
-            .map_err(|e| invalid(&json_path, format!("field `object_channels`: {e}")))?;
+    let channels = run_json
+        .object_channels
+        .clone()
+        .ok_or_else(|| invalid(&json_path, "field `object_channels` is missing"))?;
     let cfg_path = run.join("config.toml");
     let text = std::fs::read_to_string(&cfg_path).map_err(|e| IoError::io(&cfg_path, e))?;
     let config: toml::Value =

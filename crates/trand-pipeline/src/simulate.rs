@@ -6,51 +6,17 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::{DVec3, Quat};
-use trand_core::{Camera, Intrinsics, Surfels, math::softmax};
+use trand_core::{Camera, Intrinsics, Surfels};
 use trand_physics::{
     MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume, below_view, build_particles, ring_views,
 };
 use trand_render::{RenderSettings, render};
 
+use crate::surfel_ops::{channel_probs, turn};
 use crate::targets;
-use crate::update::{SceneScale, UpdateOptions};
+pub use crate::update_options::{MeshDepth, SurfelMotion};
+use crate::update_options::{SceneScale, UpdateOptions};
 use crate::{PipelineError, Result};
-
-/// Which depth of the rendered surfels feeds the TSDF.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum MeshDepth {
-    /// `Σ w z / α`: the authors' code (depth_ratio 0).
-    Expected,
-    /// The median depth (what evaluation uses).
-    Median,
-}
-
-/// Whether surfels also rotate with their particle.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SurfelMotion {
-    /// Centres only (the authors' release).
-    Translate,
-    /// Centres and orientation (polar rotation of the particle's deformation gradient).
-    TranslateRotate,
-    /// Each object moves rigidly by the best fit (Kabsch) of its surfels' particle displacements:
-    /// the simulation decides where an object falls, but the very soft material of the paper (it sags
-    /// by a third of its height under gravity) does not squash its shape.
-    RigidPerObject,
-}
-
-/// Probability of channel `c` for every surfel.
-pub(crate) fn channel_probs(s: &Surfels, c: usize) -> Vec<f32> {
-    let k = s.num_objects;
-    let mut p = vec![0.0f32; k];
-    (0..s.len())
-        .map(|i| {
-            softmax(&s.obj_logits[i * k..(i + 1) * k], &mut p);
-            p[c]
-        })
-        .collect()
-}
 
 /// The centre of the surfels' bounding box and the distance of the virtual cameras from it: far
 /// enough that the whole footprint fits a 60°-wide view.
@@ -143,8 +109,7 @@ pub fn fuse_mesh(
     Ok(mesh)
 }
 
-/// The mesh as written to PLY: vertex colours from the palette of each vertex's object id, ids above
-/// 255 (which the file's `uchar label` cannot hold) written as 255.
+/// The mesh as written to PLY: vertex colours from the palette of each vertex's object id.
 pub fn io_mesh(mesh: &trand_physics::Mesh) -> trand_io::Mesh {
     trand_io::Mesh {
         vertices: mesh.vertices.clone(),
@@ -153,16 +118,24 @@ pub fn io_mesh(mesh: &trand_physics::Mesh) -> trand_io::Mesh {
                 .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
                 .collect()
         }),
-        labels: mesh
-            .labels
-            .as_ref()
-            .map(|l| l.iter().map(|&id| id.min(255) as u8).collect()),
+        labels: mesh.labels.clone(),
         faces: mesh.faces.clone(),
     }
 }
 
-/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Returns the labelled mesh, the particle
-/// count, the largest surfel displacement and the meshing and simulation times. Stops with
+/// What [`simulate`] made besides the moved surfels.
+#[derive(Clone, Debug)]
+pub struct Simulation {
+    /// The TSDF mesh, vertices labelled by object.
+    pub mesh: trand_io::Mesh,
+    pub num_particles: usize,
+    /// The largest distance a surfel centre moved (metres).
+    pub max_displacement_m: f32,
+    pub meshing_s: f64,
+    pub simulation_s: f64,
+}
+
+/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Stops with
 /// [`PipelineError::Interrupted`] after the meshing or the simulated frame during which `cancel` was set.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
@@ -174,7 +147,7 @@ pub fn simulate(
     settings: &RenderSettings,
     progress: &mut dyn FnMut(&str, u32, u32),
     cancel: &AtomicBool,
-) -> Result<(trand_io::Mesh, usize, f32, f64, f64)> {
+) -> Result<Simulation> {
     let stop = || {
         if cancel.load(Ordering::SeqCst) {
             Err(PipelineError::Interrupted(0))
@@ -264,14 +237,13 @@ pub fn simulate(
         }
     }
     let simulation_s = t1.elapsed().as_secs_f64();
-    let io_mesh = io_mesh(&mesh);
-    Ok((
-        io_mesh,
-        set.positions.len(),
-        max_disp,
+    Ok(Simulation {
+        mesh: io_mesh(&mesh),
+        num_particles: set.positions.len(),
+        max_displacement_m: max_disp,
         meshing_s,
         simulation_s,
-    ))
+    })
 }
 
 /// Moves the surfels `idx` (simulated positions in `surfels.means`, previous ones in `before`) by
@@ -316,12 +288,6 @@ fn rigid_fit(surfels: &mut Surfels, before: &[[f32; 3]], idx: &[u32]) {
             surfels.means[i as usize][2] -= lowest;
         }
     }
-}
-
-/// A surfel orientation (stored `[w, x, y, z]`) turned by the rotation `r`: `r · q/|q|`.
-pub(crate) fn turn(r: Quat, q: [f32; 4]) -> [f32; 4] {
-    let q = r * Quat::from_xyzw(q[1], q[2], q[3], q[0]).normalize();
-    [q.w, q.x, q.y, q.z]
 }
 
 #[cfg(test)]

@@ -33,6 +33,7 @@ const FOOTPRINT_HEIGHT: f64 = 0.002;
 /// Whether the visual hull is restricted to points whose footprint on the table is hidden behind an
 /// object in every view (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum SupportPrior {
     /// Applied when the training views span less than [`NARROW_BASELINE_DEG`].

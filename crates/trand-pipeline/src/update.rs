@@ -22,160 +22,18 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use trand_core::{Camera, Surfels};
+use trand_core::Surfels;
 use trand_io::View;
-use trand_physics::{InteriorFill, MpmConfig};
 use trand_render::{GeometryMaps, Maps, RenderSettings};
-use trand_train::config::TrainConfig;
 
 pub use crate::detect::{Identity, Match, detect};
-use crate::relocalise::{NewImage, Object, Relocalise, Relocation, relocalise};
-use crate::simulate::channel_probs;
-pub use crate::simulate::{MeshDepth, SurfelMotion, simulate, virtual_cameras};
+use crate::relocalise::{NewImage, Object, Relocation, relocalise};
+pub use crate::simulate::{Simulation, simulate, virtual_cameras};
+use crate::surfel_ops::channel_probs;
 use crate::targets::{self, Supervision};
 use crate::trainer::{StepReport, Trainer};
+pub use crate::update_options::{MeshDepth, SceneScale, Stage, SurfelMotion, UpdateOptions};
 use crate::{PipelineError, Result};
-
-/// A stage that can be switched off for the ablations.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Stage {
-    On,
-    Off,
-}
-
-/// Settings of the update.
-#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct UpdateOptions {
-    pub physics: Stage,
-    pub refine: Stage,
-    /// Silhouette relocalisation after the simulation.
-    pub relocalise: Stage,
-    pub relocalise_settings: Relocalise,
-    /// Removed object ids given by the user instead of detection.
-    pub removed: Option<Vec<u16>>,
-    pub identity: Identity,
-    /// Weight of the centroid distance (in image diagonals) in the matching cost `1 − IoU + w·d`, so that
-    /// an object that moved far (low IoU) still finds its new instance rather than being taken as removed.
-    pub centroid_weight: f64,
-    pub mesh_depth: MeshDepth,
-    pub motion: SurfelMotion,
-    pub fill: InteriorFill,
-    /// Virtual views: elevations (degrees) × azimuths, at this image size and focal length. Default
-    /// 2 × 8 + the view from below = 17 views (the authors fuse their 10 test views + 1 from below);
-    /// three elevations (15°, 40°, 65°, 25 views) gave the same t=1 accuracy on both Blender sequences
-    /// (MAE 0.0400 / 0.0379 m vs 0.0390 / 0.0385 m) at 0.4–0.7 s more meshing.
-    pub ring_elevations_deg: Vec<f64>,
-    pub ring_azimuths: usize,
-    pub virtual_width: u32,
-    pub virtual_height: u32,
-    pub virtual_focal: f64,
-    pub mpm: MpmConfig,
-    pub train: TrainConfig,
-    /// Image downsampling for the refinement (`None`: the t = 0 run's).
-    pub downsample: Option<u32>,
-}
-
-impl UpdateOptions {
-    /// Checks the ranges of the options read from a file (the error names the key).
-    pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(PipelineError::Invalid(format!("invalid update option {m}")));
-        self.train.validate()?;
-        if self.downsample == Some(0) || self.downsample.is_some_and(|d| d > 64) {
-            return bad(format!(
-                "`downsample` = {:?}: must be 1 to 64",
-                self.downsample
-            ));
-        }
-        let side = trand_core::camera::MAX_IMAGE_SIDE;
-        for (key, v) in [
-            ("virtual_width", self.virtual_width),
-            ("virtual_height", self.virtual_height),
-        ] {
-            if v == 0 || v > side {
-                return bad(format!("`{key}` = {v}: must be 1 to {side}"));
-            }
-        }
-        if !(self.virtual_focal.is_finite() && self.virtual_focal > 0.0) {
-            return bad(format!(
-                "`virtual_focal` = {}: must be positive",
-                self.virtual_focal
-            ));
-        }
-        if self.ring_azimuths > 360 || self.ring_elevations_deg.len() > 90 {
-            return bad("`ring_azimuths` above 360 or more than 90 `ring_elevations_deg`".into());
-        }
-        if self.ring_elevations_deg.iter().any(|e| !e.is_finite()) {
-            return bad("`ring_elevations_deg`: not finite".into());
-        }
-        if !self.centroid_weight.is_finite() || self.centroid_weight < 0.0 {
-            return bad(format!(
-                "`centroid_weight` = {}: must be ≥ 0",
-                self.centroid_weight
-            ));
-        }
-        Ok(())
-    }
-}
-
-/// Scale of the t = 0 scene, carried into the update.
-#[derive(Clone, Copy, Debug)]
-pub struct SceneScale {
-    /// 1.1 × the largest distance of a t = 0 training camera from their mean (densification unit).
-    pub extent: f32,
-    /// Mean distance of the t = 0 training cameras from the point they look at: sets the TSDF voxel
-    /// `2·radius/256` as the authors' code does with its camera radius.
-    pub radius: f32,
-    /// The t = 0 run's training downsampling.
-    pub downsample: u32,
-}
-
-impl SceneScale {
-    /// The scale of a t = 0 run trained on `cameras`.
-    pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
-        let extent = crate::trainer::camera_extent(cameras);
-        let radius = trand_physics::focus_point(cameras)
-            .map(|f| {
-                cameras
-                    .iter()
-                    .map(|c| (c.center() - f).length())
-                    .sum::<f64>()
-                    / cameras.len().max(1) as f64
-            })
-            .unwrap_or(0.5) as f32;
-        Self {
-            extent,
-            radius,
-            downsample,
-        }
-    }
-}
-
-impl Default for UpdateOptions {
-    fn default() -> Self {
-        Self {
-            physics: Stage::On,
-            refine: Stage::On,
-            relocalise: Stage::On,
-            relocalise_settings: Relocalise::default(),
-            removed: None,
-            identity: Identity::Auto,
-            centroid_weight: 0.5,
-            mesh_depth: MeshDepth::Expected,
-            motion: SurfelMotion::RigidPerObject,
-            fill: InteriorFill::None,
-            ring_elevations_deg: vec![20.0, 50.0],
-            ring_azimuths: 8,
-            virtual_width: 320,
-            virtual_height: 240,
-            virtual_focal: 300.0,
-            mpm: MpmConfig::default(),
-            train: TrainConfig::t1(),
-            downsample: None,
-        }
-    }
-}
 
 /// Result of an update.
 #[derive(Clone, Debug)]
@@ -326,7 +184,7 @@ pub fn update_with_cancel(
     let unmoved = relocalising.then(|| surfels.clone());
     let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
-            let (m, n, d, a, b) = simulate(
+            let s = simulate(
                 &mut surfels,
                 &remaining,
                 &movable,
@@ -336,7 +194,13 @@ pub fn update_with_cancel(
                 progress,
                 cancel,
             )?;
-            (Some(m), n, d, a, b)
+            (
+                Some(s.mesh),
+                s.num_particles,
+                s.max_displacement_m,
+                s.meshing_s,
+                s.simulation_s,
+            )
         } else {
             (None, 0, 0.0, 0.0, 0.0)
         };

@@ -338,7 +338,9 @@ impl Scene {
         trand_io::output::check_new_output(path)?;
         let mut report = self.report.clone();
         report["num_surfels"] = json!(self.surfels.len());
-        trand_pipeline::outputs::write_run(path, &report, &self.config, &self.surfels, &[])?;
+        let manifest: trand_io::RunManifest = serde_json::from_value(report)
+            .map_err(|e| PipelineError::Invalid(format!("the run report: {e}")))?;
+        trand_pipeline::outputs::write_run(path, &manifest, &self.config, &self.surfels, &[])?;
         Ok(())
     }
 
@@ -380,13 +382,20 @@ impl Scene {
             }
             State::T1 => None,
         };
-        let identity_used = match r.run_json["identity"]["used"].as_str() {
+        let identity_used = match r.run_json.identity_used() {
             Some("overlap") => Identity::Overlap,
             _ => Identity::ObjectIds,
         };
-        let scale = scale_from_json(&r.run_json["scene_scale"])
-            .or_else(|| scale_from_sequence(&r.run_json, options.as_ref()));
-        let removed = serde_json::from_value(r.run_json["removed"].clone()).unwrap_or_default();
+        let details = &r.run_json.details;
+        let scale = details
+            .get("scene_scale")
+            .and_then(scale_from_json)
+            .or_else(|| scale_from_sequence(r.run_json.data.as_deref(), options.as_ref()));
+        let removed = details
+            .get("removed")
+            .and_then(|v| serde_json::from_value(v.clone()).ok())
+            .unwrap_or_default();
+        let report = serde_json::to_value(&r.run_json).unwrap_or_default();
         Ok(Scene {
             surfels: r.surfels,
             channels: r.channels,
@@ -397,7 +406,7 @@ impl Scene {
             scale,
             identity_used,
             removed,
-            report: r.run_json,
+            report,
             config,
         })
     }
@@ -406,11 +415,11 @@ impl Scene {
 /// The scale `trand update` computes for a run of the CLI: from the training ring of the sequence
 /// `run.json` names, as the run's `views` selects it.
 fn scale_from_sequence(
-    run_json: &serde_json::Value,
+    data: Option<&str>,
     opts: Option<&ReconstructOptions>,
 ) -> Option<SceneScale> {
     let opts = opts?;
-    let data = run_json["data"].as_str()?;
+    let data = data?;
     let seq = trand_io::read_sequence_with(data, &LoadOptions::cameras_only()).ok()?;
     let views = match seq.train_selection {
         trand_io::TrainSelection::Listed => seq.train_t0.clone(),

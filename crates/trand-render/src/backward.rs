@@ -33,12 +33,13 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, TILE, TILE_PIXELS};
 use crate::forward::{PADDED_PIXELS, PaddedPlane, RowGroups, group_columns, tile_pixels};
-use crate::intersect::{Row, RowBasis, blended_lanes, cross, ndc_depth_lanes};
+use crate::intersect::{Row, RowBasis, blended_lanes, ndc_depth_lanes};
+use crate::intrinsics::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::{Proj, ProjGrad};
-use crate::simd::{PREFETCH_AHEAD, prefetch, prefetch_slice};
+use crate::vec3::cross;
 
 /// Offsets inside a pair gradient record.
 pub mod rec {

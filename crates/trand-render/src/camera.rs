@@ -71,8 +71,3 @@ impl<R: Real> CamR<R> {
         self.height.div_ceil(crate::constants::TILE)
     }
 }
-
-#[inline]
-pub(crate) fn dot<R: Real>(a: [R; 3], b: [R; 3]) -> R {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}

@@ -29,11 +29,11 @@ use crate::binning::Bins;
 use crate::camera::CamR;
 use crate::constants::{MEDIAN_TRANSMITTANCE, MIN_TRANSMITTANCE, TILE, TILE_PIXELS};
 use crate::intersect::{Row, RowBasis, intersect_lanes, ndc_depth_lanes, tile_row_columns};
+use crate::intrinsics::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 use crate::labels::TileLabels;
 use crate::lanes::{LANES, M, V, rsub, select};
 use crate::layout::Layout;
 use crate::preprocess::Proj;
-use crate::simd::{PREFETCH_AHEAD, prefetch, prefetch_slice};
 
 /// A tile's channel plane with [`LANES`] values of padding: an eight-pixel group may start at any column, so one
 /// starting late in the last row reads and writes up to seven pixels past the tile (masked lanes, whose

@@ -10,6 +10,7 @@ use trand_core::Real;
 use crate::constants::{FILTER_INV_SQUARE, MAX_ALPHA, MIN_ALPHA};
 use crate::lanes::{M, V, rsub, select};
 use crate::preprocess::{Proj, RowCut};
+use crate::vec3::cross;
 
 /// A ray–surfel hit that passes the depth and alpha gates.
 #[derive(Clone, Copy, Debug)]
@@ -43,16 +44,6 @@ pub struct RowBasis<R> {
     a: [R; 3],
     b1: [R; 3],
     b0: [R; 3],
-}
-
-/// `u × v`.
-#[inline(always)]
-pub(crate) fn cross<R: Real>(u: &[R; 3], v: &[R; 3]) -> [R; 3] {
-    [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
 }
 
 impl<R: Real> RowBasis<R> {

@@ -174,7 +174,7 @@ impl<R: Real> M<R> {
     /// Bit `l` set where lane `l` is (the lanes' sign bits: one `movmskps` for `f32`).
     #[inline(always)]
     pub fn bits(self) -> u8 {
-        crate::simd::sign_bits::<R>(&self.0)
+        crate::intrinsics::sign_bits::<R>(&self.0)
     }
     #[inline(always)]
     pub fn any(self) -> bool {

@@ -6,8 +6,19 @@
 //! integer block holds the index of the last blended surfel and of the median surfel per pixel. The
 //! blocks are converted to row-major images once the tiles are done.
 
-use crate::GeometryMaps;
 use crate::constants::TILE_PIXELS;
+
+/// Whether the geometric maps (expected and median depth, normal, distortion) are rendered. Training
+/// on images alone (TRAN-D's default, with the 2DGS normal and distortion losses off) needs none of
+/// them; skipping their accumulation saves about a quarter of the forward kernel's arithmetic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum GeometryMaps {
+    #[default]
+    Rendered,
+    /// Not rendered: `depth`, `median`, `normal` and `distortion` come back empty, and the backward pass
+    /// accepts no gradient for `median` or `distortion` (it would need their forward state).
+    Skipped,
+}
 
 /// Channel offsets inside a tile block. Mask and object channels exist only when requested; the object
 /// channels are either K planes (the map) or, against a label map, one plane of per-tile sums

@@ -16,7 +16,8 @@
 //! AVX-512, AVX2 and the baseline target, chosen at run time ([`simd`]); all give identical bits.
 //!
 //! Everything is generic over [`trand_core::Real`]: `f32` in production, `f64` in the finite-difference
-//! tests, from one source. Entry points: [`render`] and [`Rendered::backward`].
+//! tests, from one source. Entry points: [`render`] and [`Rendered::backward`], or both behind the
+//! [`Rasterizer`] trait ([`Cpu`]), the seam a GPU backend implements.
 
 pub mod backward;
 pub mod bench_scene;
@@ -25,17 +26,22 @@ pub mod camera;
 pub mod constants;
 pub mod forward;
 pub mod intersect;
+pub mod intrinsics;
 pub mod labels;
 pub mod lanes;
 pub mod layout;
 pub mod params;
 pub mod preprocess;
+pub mod rasterizer;
 mod render;
 pub mod simd;
+mod vec3;
 
 pub use labels::{ObjectSumGrads, ObjectSums};
+pub use layout::GeometryMaps;
 pub use params::{ParamsOf, SurfelParams};
+pub use rasterizer::{Cpu, Rasterizer};
 pub use render::{
-    GeometryMaps, Gradients, MAX_OBJECTS, Maps, OutputGrads, RenderError, RenderSettings, Rendered,
-    render, render_object_sums,
+    Gradients, MAX_OBJECTS, Maps, OutputGrads, RenderError, RenderSettings, Rendered, render,
+    render_object_sums,
 };

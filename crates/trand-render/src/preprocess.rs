@@ -26,10 +26,10 @@ use trand_core::{
     sh::{basis, basis_jacobian, num_coeffs},
 };
 
-use crate::camera::{CamR, dot};
+use crate::camera::CamR;
 use crate::constants::{FILTER_INV_SQUARE, FILTER_RADIUS, MIN_ALPHA, SIGMA_CUTOFF, TILE};
-use crate::intersect::cross;
 use crate::params::{ParamsOf, SurfelParams};
+use crate::vec3::{cross, dot};
 
 /// A visible surfel after preprocess: everything the per-pixel kernels read.
 #[derive(Clone, Copy, Debug)]

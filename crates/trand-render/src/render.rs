@@ -9,7 +9,7 @@ use crate::camera::CamR;
 use crate::constants::{DEFAULT_NEAR, TILE, TILE_PIXELS};
 use crate::labels::{ObjectSumGrads, ObjectSums};
 use crate::lanes::LANES;
-use crate::layout::{INT_CHANNELS, Layout};
+use crate::layout::{GeometryMaps, INT_CHANNELS, Layout};
 use crate::params::{ParamsOf, SurfelParams, par_zeros};
 use crate::preprocess::{
     Proj, Retained, SurfelGradSlot, preprocess_backward_one, preprocess_retained, softmax_block,
@@ -45,18 +45,6 @@ impl Maps {
     pub fn objects(self) -> bool {
         matches!(self, Maps::RgbObjects | Maps::All)
     }
-}
-
-/// Whether the geometric maps (expected and median depth, normal, distortion) are rendered. Training
-/// on images alone (TRAN-D's default, with the 2DGS normal and distortion losses off) needs none of
-/// them; skipping their accumulation saves about a quarter of the forward kernel's arithmetic.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum GeometryMaps {
-    #[default]
-    Rendered,
-    /// Not rendered: `depth`, `median`, `normal` and `distortion` come back empty, and the backward pass
-    /// accepts no gradient for `median` or `distortion` (it would need their forward state).
-    Skipped,
 }
 
 /// Render settings.
@@ -497,6 +485,112 @@ fn concat<T>(chunks: Vec<Vec<T>>) -> Vec<T> {
     out
 }
 
+/// The rendered maps, row-major.
+struct RowMajor<R> {
+    rgb: Vec<R>,
+    mask: Vec<R>,
+    objects: Vec<R>,
+    object_sums: Option<ObjectSums<R>>,
+    alpha: Vec<R>,
+    depth: Vec<R>,
+    median: Vec<R>,
+    normal: Vec<R>,
+    distortion: Vec<R>,
+}
+
+/// Tile blocks (layout `lay`) → row-major maps; the maps the layout lacks come back empty.
+fn row_major<R: Real>(blocks: &[R], lay: &Layout, cam: &CamR<R>) -> RowMajor<R> {
+    let k = lay.num_objects;
+    let block = lay.block();
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let tiles_x = cam.tiles_x() as usize;
+    // One slab of 16 image rows per tile row, in parallel: each tile's planes are read front to back
+    // while they are contiguous (reading image row by image row instead jumped between forty blocks
+    // for every row and took three times as long).
+    let gather = |ch0: usize, nch: usize| -> Vec<R> {
+        let mut out = par_zeros(w * h * nch);
+        out.par_chunks_mut(w * TILE as usize * nch)
+            .enumerate()
+            .for_each(|(ty, slab)| {
+                let rows = slab.len() / (w * nch);
+                for tx in 0..tiles_x {
+                    let x0 = tx * TILE as usize;
+                    let nx = (w - x0).min(TILE as usize);
+                    let b = &blocks[(ty * tiles_x + tx) * block..(ty * tiles_x + tx + 1) * block];
+                    for ly in 0..rows {
+                        let row = &mut slab[(ly * w + x0) * nch..(ly * w + x0 + nx) * nch];
+                        let src =
+                            |c: usize| &b[(ch0 + c) * TILE_PIXELS + ly * TILE as usize..][..nx];
+                        match nch {
+                            1 => row.copy_from_slice(src(0)),
+                            3 => {
+                                let (r, g, bl) = (src(0), src(1), src(2));
+                                for (x, d) in row.chunks_exact_mut(3).enumerate() {
+                                    d.copy_from_slice(&[r[x], g[x], bl[x]]);
+                                }
+                            }
+                            _ => {
+                                for (x, d) in row.chunks_exact_mut(nch).enumerate() {
+                                    for (c, v) in d.iter_mut().enumerate() {
+                                        *v = src(c)[x];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        out
+    };
+    let rgb = gather(lay.rgb, 3);
+    let mask = if lay.has_mask {
+        gather(lay.mask, 3)
+    } else {
+        Vec::new()
+    };
+    let objects = if lay.has_objects {
+        gather(lay.obj, k)
+    } else {
+        Vec::new()
+    };
+    let object_sums = lay.sums.map(|sp| {
+        let mut sums = vec![R::ZERO; 2 * k];
+        for b in blocks.chunks_exact(block) {
+            for (s, &v) in sums.iter_mut().zip(&b[sp * TILE_PIXELS..]) {
+                *s += v;
+            }
+        }
+        let on_label = sums.split_off(k);
+        ObjectSums {
+            total: sums,
+            on_label,
+        }
+    });
+    let alpha = gather(lay.alpha, 1);
+    let maybe = |ch0: usize, nch: usize| {
+        if lay.has_geometry() {
+            gather(ch0, nch)
+        } else {
+            Vec::new()
+        }
+    };
+    let depth = maybe(lay.depth, 1);
+    let median = maybe(lay.median, 1);
+    let normal = maybe(lay.normal, 3);
+    let distortion = maybe(lay.dist, 1);
+    RowMajor {
+        rgb,
+        mask,
+        objects,
+        object_sums,
+        alpha,
+        depth,
+        median,
+        normal,
+        distortion,
+    }
+}
+
 fn render_impl<R: Real, P: SurfelParams<R>>(
     params: &P,
     camera: &Camera,
@@ -593,83 +687,17 @@ fn render_impl<R: Real, P: SurfelParams<R>>(
             raster_tile(t, &bins, &projs, &probs, &lay, &cam, bg, labels, b, ib, rw)
         });
 
-    // Tile blocks → row-major maps.
-    let (w, h) = (cam.width as usize, cam.height as usize);
-    let tiles_x = cam.tiles_x() as usize;
-    // One slab of 16 image rows per tile row, in parallel: each tile's planes are read front to back
-    // while they are contiguous (reading image row by image row instead jumped between forty blocks
-    // for every row and took three times as long).
-    let gather = |ch0: usize, nch: usize| -> Vec<R> {
-        let mut out = par_zeros(w * h * nch);
-        out.par_chunks_mut(w * TILE as usize * nch)
-            .enumerate()
-            .for_each(|(ty, slab)| {
-                let rows = slab.len() / (w * nch);
-                for tx in 0..tiles_x {
-                    let x0 = tx * TILE as usize;
-                    let nx = (w - x0).min(TILE as usize);
-                    let b = &blocks[(ty * tiles_x + tx) * block..(ty * tiles_x + tx + 1) * block];
-                    for ly in 0..rows {
-                        let row = &mut slab[(ly * w + x0) * nch..(ly * w + x0 + nx) * nch];
-                        let src =
-                            |c: usize| &b[(ch0 + c) * TILE_PIXELS + ly * TILE as usize..][..nx];
-                        match nch {
-                            1 => row.copy_from_slice(src(0)),
-                            3 => {
-                                let (r, g, bl) = (src(0), src(1), src(2));
-                                for (x, d) in row.chunks_exact_mut(3).enumerate() {
-                                    d.copy_from_slice(&[r[x], g[x], bl[x]]);
-                                }
-                            }
-                            _ => {
-                                for (x, d) in row.chunks_exact_mut(nch).enumerate() {
-                                    for (c, v) in d.iter_mut().enumerate() {
-                                        *v = src(c)[x];
-                                    }
-                                }
-                            }
-                        }
-                    }
-                }
-            });
-        out
-    };
-    let rgb = gather(lay.rgb, 3);
-    let mask = if lay.has_mask {
-        gather(lay.mask, 3)
-    } else {
-        Vec::new()
-    };
-    let objects = if lay.has_objects {
-        gather(lay.obj, k)
-    } else {
-        Vec::new()
-    };
-    let object_sums = lay.sums.map(|sp| {
-        let mut sums = vec![R::ZERO; 2 * k];
-        for b in blocks.chunks_exact(block) {
-            for (s, &v) in sums.iter_mut().zip(&b[sp * TILE_PIXELS..]) {
-                *s += v;
-            }
-        }
-        let on_label = sums.split_off(k);
-        ObjectSums {
-            total: sums,
-            on_label,
-        }
-    });
-    let alpha = gather(lay.alpha, 1);
-    let maybe = |ch0: usize, nch: usize| {
-        if lay.has_geometry() {
-            gather(ch0, nch)
-        } else {
-            Vec::new()
-        }
-    };
-    let depth = maybe(lay.depth, 1);
-    let median = maybe(lay.median, 1);
-    let normal = maybe(lay.normal, 3);
-    let distortion = maybe(lay.dist, 1);
+    let RowMajor {
+        rgb,
+        mask,
+        objects,
+        object_sums,
+        alpha,
+        depth,
+        median,
+        normal,
+        distortion,
+    } = row_major(&blocks, &lay, &cam);
     let num_pairs = bins.num_pairs();
     let pixel_pairs = projs
         .par_iter()

@@ -181,3 +181,34 @@ fn bad_label_maps_are_errors() {
         Some(RenderError::SumsWithoutObjects)
     );
 }
+
+#[test]
+fn the_cpu_rasterizer_behind_the_trait_is_render_and_backward() {
+    use trand_render::{Cpu, Rasterizer};
+    let camera = common::test_camera(48, 40, 0.8);
+    let scene = common::random_scene(120, 1, K, 0.25, 5);
+    let settings = RenderSettings {
+        maps: Maps::All,
+        ..Default::default()
+    };
+    let lab = labels(48, 40);
+    for labels in [None, Some(&lab[..])] {
+        let direct = match labels {
+            Some(l) => render_object_sums::<f64, _>(&scene, &camera, &settings, l),
+            None => render::<f64, _>(&scene, &camera, &settings),
+        }
+        .unwrap();
+        let frame = Cpu.forward(&scene, &camera, &settings, labels).unwrap();
+        assert_eq!(frame.rgb, direct.rgb);
+        assert_eq!(frame.objects, direct.objects);
+        assert_eq!(frame.object_sums, direct.object_sums);
+        let grads = OutputGrads {
+            rgb: Some(vec![1.0; 48 * 40 * 3]),
+            ..Default::default()
+        };
+        let via_trait = Cpu.backward(&frame, &scene, &grads);
+        let plain = direct.backward(&scene, &grads);
+        assert_eq!(flat(&via_trait.params), flat(&plain.params));
+        assert_eq!(via_trait.densify, plain.densify);
+    }
+}

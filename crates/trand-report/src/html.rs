@@ -523,14 +523,11 @@ impl StateView<'_> {
                     continue;
                 };
                 let pts: Vec<(f64, f64)> = r
-                    .get("loss_curve")
-                    .and_then(|c| c.as_array())
-                    .map(|a| {
-                        a.iter()
-                            .filter_map(|p| Some((p.get(0)?.as_f64()?, p.get(1)?.as_f64()?)))
-                            .collect()
-                    })
-                    .unwrap_or_default();
+                    .loss_curve
+                    .iter()
+                    .flatten()
+                    .map(|&(i, l)| (i as f64, l as f64))
+                    .collect();
                 if !pts.is_empty() {
                     loss.push(Series {
                         name: m.name().into(),
@@ -553,18 +550,17 @@ impl StateView<'_> {
             let Some(r) = read_run_json(&dir)? else {
                 continue;
             };
-            let Some(t) = r.get("timings").and_then(|t| t.as_object()) else {
+            let Some(t) = &r.timings else {
                 continue;
             };
             let segs: Vec<(String, f64)> = tables::stages(self.state)
                 .iter()
                 .filter(|k| **k != "total_s")
-                .filter_map(|k| Some((k.to_string(), t.get(*k)?.as_f64()?)))
+                .filter_map(|k| Some((k.to_string(), *t.get(*k)?)))
                 .collect();
             let segs = if segs.is_empty() {
                 t.get("total_s")
-                    .and_then(|v| v.as_f64())
-                    .map(|v| vec![("total_s".to_string(), v)])
+                    .map(|&v| vec![("total_s".to_string(), v)])
                     .unwrap_or_default()
             } else {
                 segs

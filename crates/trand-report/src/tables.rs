@@ -104,15 +104,8 @@ pub fn read_metrics(run: &Path) -> Result<Option<Metrics>, ReportError> {
 }
 
 /// `run.json` of a run folder, `None` if absent.
-pub fn read_run_json(run: &Path) -> Result<Option<serde_json::Value>, ReportError> {
-    let path = run.join(trand_io::run_layout::RUN_JSON);
-    if !path.is_file() {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(&path).map_err(|e| ReportError::io(&path, e))?;
-    serde_json::from_str(&text)
-        .map(Some)
-        .map_err(|source| ReportError::Json { path, source })
+pub fn read_run_json(run: &Path) -> Result<Option<trand_io::RunManifest>, ReportError> {
+    Ok(trand_io::RunManifest::read(run)?)
 }
 
 fn mean(v: &[f64]) -> Option<f64> {
@@ -168,15 +161,11 @@ fn efficiency(
             continue;
         };
         n += 1;
-        if let Some(t) = run.get("timings").and_then(|t| t.as_object()) {
-            for (k, v) in t {
-                if let Some(x) = v.as_f64() {
-                    stage_vals.entry(k.clone()).or_default().push(x);
-                }
-            }
+        for (k, x) in run.timings.iter().flatten() {
+            stage_vals.entry(k.clone()).or_default().push(*x);
         }
-        surfels.extend(run.get("num_surfels").and_then(|v| v.as_f64()));
-        rss.extend(run.get("peak_rss_mb").and_then(|v| v.as_f64()));
+        surfels.extend(run.num_surfels.map(|n| n as f64));
+        rss.extend(run.peak_rss_mb);
     }
     Ok(EfficiencyRow {
         method,

@@ -19,7 +19,7 @@
 
 use std::num::NonZero;
 
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64;
@@ -99,35 +99,12 @@ impl SlabBox {
     }
 }
 
-/// The least-squares point closest to every camera's optical axis. With (nearly) parallel axes, falls
-/// back to the mean of the axes' intersections with the plane z = 0.
+/// [`trand_core::camera::focus_point`], with the reason as an error when there is none.
 pub fn focus_point(cameras: &[Camera]) -> Result<DVec3, InitError> {
     if cameras.is_empty() {
         return Err(InitError::NoCameras);
     }
-    let mut a = DMat3::ZERO;
-    let mut b = DVec3::ZERO;
-    for c in cameras {
-        let d = c.forward().normalize();
-        let proj = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
-        a += proj;
-        b += proj * c.center();
-    }
-    // Well conditioned when the axes span at least two directions; relative threshold on the determinant.
-    if a.determinant().abs() > 1e-6 * (cameras.len() as f64).powi(3) {
-        return Ok(a.inverse() * b);
-    }
-    let hits: Vec<DVec3> = cameras
-        .iter()
-        .filter_map(|c| {
-            let (o, d) = (c.center(), c.forward());
-            (d.z < -1e-9).then(|| o + d * (-o.z / d.z))
-        })
-        .collect();
-    if hits.is_empty() {
-        return Err(InitError::DegenerateCameras);
-    }
-    Ok(hits.iter().copied().sum::<DVec3>() / hits.len() as f64)
+    trand_core::camera::focus_point(cameras).ok_or(InitError::DegenerateCameras)
 }
 
 /// Where the slab comes from.

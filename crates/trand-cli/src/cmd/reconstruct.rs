@@ -23,6 +23,8 @@ use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
+
+use super::{canonical, name_of};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
@@ -36,8 +38,8 @@ pub struct Args {
     /// Training views: 3, 6 (the paper) or 12 ring views.
     #[arg(long)]
     pub views: Option<u32>,
-    /// trand, no-object-loss (ablation) or plain-2dgs (baseline).
-    #[arg(long, value_parser = parse_method)]
+    /// trand, no-object-loss (ablation) or plain2dgs (alias plain-2dgs; baseline).
+    #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// TOML file with any of the options (see `config.toml` of a finished run for every key).
     #[arg(long)]
@@ -50,11 +52,11 @@ pub struct Args {
     #[arg(long)]
     pub downsample: Option<u32>,
     /// Initialisation: visual-hull (default) or slab (the authors' random slab).
-    #[arg(long, value_parser = parse_init)]
+    #[arg(long, value_enum)]
     pub init: Option<InitMode>,
     /// Open vessels: carve (default: keep surfels out of the openings of upright tumblers, mugs,
     /// bowls and wine glasses, so their inside is fitted instead of a lid) or off.
-    #[arg(long, value_parser = parse_openings)]
+    #[arg(long, value_enum)]
     pub openings: Option<OpeningPrior>,
     /// Instance ids of the training masks: auto (default: used as they are unless they disagree with
     /// the geometry, then associated), ids (one id per object in every view, as a tracker gives) or
@@ -64,7 +66,7 @@ pub struct Args {
     /// Support prior: auto (default: on when the training views span less than 30 degrees), on or
     /// off. Keeps the initial surfels where the table under them is hidden behind an object in every
     /// view, which pins the depth a narrow baseline leaves open.
-    #[arg(long, value_parser = parse_support)]
+    #[arg(long, value_enum)]
     pub support: Option<SupportPrior>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
@@ -76,43 +78,6 @@ pub struct Args {
     pub checkpoint_every: u32,
 }
 
-fn parse_openings(s: &str) -> Result<OpeningPrior, String> {
-    match s {
-        "carve" => Ok(OpeningPrior::Carve),
-        "off" => Ok(OpeningPrior::Off),
-        _ => Err(format!("unknown opening prior `{s}` (carve, off)")),
-    }
-}
-
-fn parse_support(s: &str) -> Result<SupportPrior, String> {
-    match s {
-        "auto" => Ok(SupportPrior::Auto),
-        "on" => Ok(SupportPrior::On),
-        "off" => Ok(SupportPrior::Off),
-        _ => Err(format!("unknown support prior `{s}` (auto, on, off)")),
-    }
-}
-
-fn parse_method(s: &str) -> Result<Method, String> {
-    match s {
-        "trand" => Ok(Method::Trand),
-        "no-object-loss" => Ok(Method::NoObjectLoss),
-        "plain-2dgs" => Ok(Method::Plain2dgs),
-        _ => Err(format!(
-            "unknown method `{s}` (trand, no-object-loss, plain-2dgs)"
-        )),
-    }
-}
-
-fn parse_init(s: &str) -> Result<InitMode, String> {
-    match s {
-        "visual-hull" => Ok(InitMode::VisualHull),
-        "slab" => Ok(InitMode::Slab),
-        _ => Err(format!("unknown init `{s}` (visual-hull, slab)")),
-    }
-}
-
-/// Options from the config file, then the flags.
 pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     let mut o = match &a.config {
         Some(p) => {
@@ -329,34 +294,43 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let renders = trand_pipeline::outputs::render_views(&rec.surfels, depth_views, &settings)?;
     let render_s = t_render.elapsed().as_secs_f64();
-    let run_json = serde_json::json!({
-        "state": "t0",
-        "method": opts.method,
-        "views": opts.views,
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
-        "sequence_fingerprint": trand_pipeline::outputs::sequence_fingerprint(&seq),
-        "train_views": rec.train_views,
-        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(depth_views),
-        "depth_views": depth_at,
-        "object_channels": rec.channels,
-        "vessel_tops": rec.vessel_tops,
-        "identity": rec.identity,
-        "support_prior": { "mode": opts.support, "applied": rec.support_applied },
-        "timings": {
-            "preprocess_s": rec.preprocess_s,
-            "optimise_s": rec.optimise_s,
-            "total_s": rec.preprocess_s + rec.optimise_s,
-            "test_render_s": render_s,
-            "wall_s": t_all.elapsed().as_secs_f64(),
-        },
-        "initial_surfels": rec.initial_surfels,
-        "num_trained": rec.num_trained,
-        "num_surfels": rec.surfels.len(),
-        "loss_curve": rec.curve,
-        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
-        "threads": rayon::current_num_threads(),
-        "trand_version": env!("CARGO_PKG_VERSION"),
-    });
+    let mut run_json = trand_io::RunManifest {
+        state: Some("t0".into()),
+        method: Some(name_of(serde_json::json!(opts.method))),
+        views: Some(opts.views),
+        data: Some(canonical(&a.data)),
+        sequence_fingerprint: Some(trand_pipeline::outputs::sequence_fingerprint(&seq)),
+        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(depth_views))),
+        object_channels: Some(rec.channels.clone()),
+        timings: Some(
+            [
+                ("preprocess_s", rec.preprocess_s),
+                ("optimise_s", rec.optimise_s),
+                ("total_s", rec.preprocess_s + rec.optimise_s),
+                ("test_render_s", render_s),
+                ("wall_s", t_all.elapsed().as_secs_f64()),
+            ]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+        ),
+        num_surfels: Some(rec.surfels.len()),
+        loss_curve: Some(rec.curve.clone()),
+        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
+        threads: Some(rayon::current_num_threads()),
+        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
+        ..Default::default()
+    };
+    run_json
+        .detail("train_views", &rec.train_views)
+        .detail("depth_views", depth_at)
+        .detail("vessel_tops", &rec.vessel_tops)
+        .detail("identity", &rec.identity)
+        .detail(
+            "support_prior",
+            serde_json::json!({ "mode": opts.support, "applied": rec.support_applied }),
+        )
+        .detail("initial_surfels", rec.initial_surfels)
+        .detail("num_trained", rec.num_trained);
     let config = toml::to_string(&opts).context("serialising the configuration")?;
     phase.store(Phase::Writing as u8, Ordering::SeqCst);
     trand_pipeline::outputs::write_run(&a.out, &run_json, &config, &rec.surfels, &renders)?;

@@ -1,14 +1,16 @@
 //! `trand update`: the t = 1 scene update of a t = 0 run from one new image (see
 //! `trand_pipeline::update` for the stages).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use trand_io::{View, ViewCount, select_train_views};
+use trand_io::{State, View, ViewCount, select_train_views};
 use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
+
+use super::{canonical, name_of};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -28,15 +30,15 @@ pub struct Args {
     #[arg(long, requires = "image")]
     pub mask: Option<PathBuf>,
     /// Physics simulation: on (default) or off (the "without simulation" ablation).
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub physics: Option<Stage>,
     /// Single-image refinement: on (default) or off ("physics only").
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub refine: Option<Stage>,
     /// Relocalisation after the simulation: on (default) searches the resting poses of the objects the
     /// simulation could move (and of any whose silhouette misses its mask) against the new image's
     /// mask and colours; off keeps the simulated pose.
-    #[arg(long, value_parser = parse_stage)]
+    #[arg(long, value_enum)]
     pub relocalise: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
     #[arg(long, num_args = 1..)]
@@ -47,40 +49,16 @@ pub struct Args {
     #[arg(long, value_enum)]
     pub identity: Option<Identity>,
     /// Depth that feeds the TSDF: expected (default, the authors' code) or median.
-    #[arg(long, value_parser = parse_depth)]
+    #[arg(long, value_enum)]
     pub mesh_depth: Option<MeshDepth>,
-    /// How surfels follow the simulation: translate (each with its particle, the paper), rotate (also
-    /// turn by the particle's polar rotation) or rigid (each object by the best rigid fit of its particles).
-    #[arg(long, value_parser = parse_motion)]
+    /// How surfels follow the simulation: translate (each with its particle, the paper),
+    /// translate-rotate (alias rotate: also turn by the particle's polar rotation) or
+    /// rigid-per-object (alias rigid, the default: each object by the best rigid fit of its particles).
+    #[arg(long, value_enum)]
     pub motion: Option<SurfelMotion>,
     /// TOML file with any of the update options.
     #[arg(long)]
     pub config: Option<PathBuf>,
-}
-
-fn parse_stage(s: &str) -> Result<Stage, String> {
-    match s {
-        "on" => Ok(Stage::On),
-        "off" => Ok(Stage::Off),
-        _ => Err(format!("`{s}`: expected on or off")),
-    }
-}
-
-fn parse_motion(s: &str) -> Result<SurfelMotion, String> {
-    match s {
-        "translate" => Ok(SurfelMotion::Translate),
-        "rotate" => Ok(SurfelMotion::TranslateRotate),
-        "rigid" => Ok(SurfelMotion::RigidPerObject),
-        _ => Err(format!("`{s}`: expected translate, rotate or rigid")),
-    }
-}
-
-fn parse_depth(s: &str) -> Result<MeshDepth, String> {
-    match s {
-        "expected" => Ok(MeshDepth::Expected),
-        "median" => Ok(MeshDepth::Median),
-        _ => Err(format!("`{s}`: expected `expected` or `median`")),
-    }
 }
 
 fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
@@ -150,23 +128,26 @@ fn new_view(a: &Args, seq: &trand_io::Sequence) -> anyhow::Result<View> {
     Ok(v)
 }
 
-pub fn run(a: Args) -> anyhow::Result<()> {
-    let t_all = Instant::now();
-    trand_io::output::check_new_output(&a.out)?;
-    let run_json_path = a.run.join("run.json");
-    let run_json: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(&run_json_path)
-            .with_context(|| format!("{}: not a run folder", a.run.display()))?,
-    )
-    .with_context(|| format!("{}: malformed JSON", run_json_path.display()))?;
-    if run_json["state"] != "t0" {
+/// A t = 0 run folder, checked: its manifest, configuration, object channels and surfels.
+struct T0Run {
+    manifest: trand_io::RunManifest,
+    options: ReconstructOptions,
+    channels: Vec<(u16, usize)>,
+    surfels: trand_core::Surfels,
+}
+
+fn load_t0_run(run: &Path) -> anyhow::Result<T0Run> {
+    let run_json_path = run.join(trand_io::run_layout::RUN_JSON);
+    let run_json = trand_io::RunManifest::read(run)?
+        .with_context(|| format!("{}: not a run folder (no run.json)", run.display()))?;
+    if run_json.state().ok().flatten() != Some(State::T0) {
         bail!(
             "{}: field `state` is {} but update needs a t0 run",
             run_json_path.display(),
-            run_json["state"]
+            serde_json::json!(run_json.state)
         );
     }
-    let cfg_path = a.run.join("config.toml");
+    let cfg_path = run.join("config.toml");
     let ropts: ReconstructOptions = toml::from_str(
         &std::fs::read_to_string(&cfg_path)
             .with_context(|| format!("reading {}", cfg_path.display()))?,
@@ -175,10 +156,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     ropts
         .validate()
         .with_context(|| format!("{}: invalid configuration", cfg_path.display()))?;
-    let channels: Vec<(u16, usize)> =
-        serde_json::from_value(run_json["object_channels"].clone())
-            .with_context(|| format!("{}: field `object_channels`", run_json_path.display()))?;
-    let ply_path = a.run.join("surfels.ply");
+    let channels = run_json.object_channels.clone().with_context(|| {
+        format!(
+            "{}: field `object_channels` is missing",
+            run_json_path.display()
+        )
+    })?;
+    let ply_path = run.join("surfels.ply");
     let surfels = trand_io::read_surfels_ply(&ply_path)?;
     surfels
         .validate()
@@ -198,26 +182,21 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         })?;
     }
 
-    let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
-    let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
-    let recorded = &run_json["sequence_fingerprint"];
-    if recorded.is_null() {
-        // A run made from in-memory arrays (the Python package's `Scene.save`) names no sequence.
-        eprintln!(
-            "note: {} records no sequence; taking {} to be the one it was reconstructed from",
-            a.run.display(),
-            a.data.display()
-        );
-    } else if recorded.as_str() != Some(fp.as_str()) {
-        bail!(
-            "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
-            a.run.display(),
-            a.data.display(),
-            run_json["sequence_fingerprint"]
-        );
-    }
-    let view = new_view(&a, &seq)?;
+    Ok(T0Run {
+        manifest: run_json,
+        options: ropts,
+        channels,
+        surfels,
+    })
+}
 
+/// The update options: the `--config` file's (or the defaults), then the flags; the identity rule
+/// follows the t = 0 run's when left on auto. Also whether the t = 0 masks needed association.
+fn update_options(
+    a: &Args,
+    run_json: &trand_io::RunManifest,
+    ropts: &ReconstructOptions,
+) -> anyhow::Result<(UpdateOptions, bool)> {
     let mut opts = match &a.config {
         Some(p) => toml::from_str::<UpdateOptions>(
             &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
@@ -234,7 +213,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
     opts.identity = a.identity.unwrap_or(opts.identity);
     // A segmenter whose t = 0 ids needed association numbers the new image on its own as well.
-    let t0_associated = run_json["identity"]["used"].as_str() == Some("overlap");
+    let t0_associated = run_json.identity_used() == Some("overlap");
     if opts.identity == Identity::Auto && t0_associated {
         opts.identity = Identity::Overlap;
     }
@@ -246,6 +225,116 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     opts.train.background = ropts.train.background;
     opts.train.sh_degree = ropts.train.sh_degree;
     opts.train.near = ropts.train.near;
+    Ok((opts, t0_associated))
+}
+
+/// What the t = 1 manifest records besides the update's result.
+struct T1Record<'a> {
+    seq: &'a trand_io::Sequence,
+    fingerprint: String,
+    view: &'a View,
+    channels: Vec<(u16, usize)>,
+    t0_associated: bool,
+    render_s: f64,
+    wall_s: f64,
+}
+
+/// `run.json` of the t = 1 run.
+fn t1_manifest(
+    a: &Args,
+    ropts: &ReconstructOptions,
+    opts: &UpdateOptions,
+    up: &trand_pipeline::update::Update,
+    t1: T1Record<'_>,
+) -> trand_io::RunManifest {
+    let total =
+        up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
+    let mut out_json = trand_io::RunManifest {
+        state: Some("t1".into()),
+        method: Some(name_of(serde_json::json!(ropts.method))),
+        views: Some(ropts.views),
+        data: Some(canonical(&a.data)),
+        sequence_fingerprint: Some(t1.fingerprint),
+        depth_clamp_m: Some(Some(trand_pipeline::outputs::depth_clamp(&t1.seq.test_t1))),
+        object_channels: Some(t1.channels),
+        timings: Some(
+            [
+                ("detection_s", up.detection_s),
+                ("meshing_s", up.meshing_s),
+                ("simulation_s", up.simulation_s),
+                ("relocalisation_s", up.relocalisation_s),
+                ("refinement_s", up.refinement_s),
+                ("total_s", total),
+                ("test_render_s", t1.render_s),
+                ("wall_s", t1.wall_s),
+            ]
+            .map(|(k, v)| (k.to_string(), v))
+            .into(),
+        ),
+        num_surfels: Some(up.surfels.len()),
+        loss_curve: Some(up.curve.clone()),
+        peak_rss_mb: trand_pipeline::outputs::peak_rss_mb(),
+        threads: Some(rayon::current_num_threads()),
+        trand_version: Some(env!("CARGO_PKG_VERSION").into()),
+        ..Default::default()
+    };
+    out_json
+        .detail("t0_run", canonical(&a.run))
+        .detail("new_image", &t1.view.name)
+        .detail("matching", &up.matches)
+        .detail("removed", &up.removed)
+        .detail(
+            "removed_by",
+            if opts.removed.is_some() {
+                "user"
+            } else {
+                "detection"
+            },
+        )
+        .detail("identity", up.identity)
+        .detail("identity_from_t0", t1.t0_associated)
+        .detail("relocalise", opts.relocalise)
+        .detail("relocations", &up.relocations)
+        .detail("movable", &up.movable)
+        .detail("deleted_surfels", up.deleted_surfels)
+        .detail("num_particles", up.num_particles)
+        .detail("max_surfel_displacement_m", up.max_displacement_m)
+        .detail("physics", opts.physics)
+        .detail("motion", opts.motion)
+        .detail("refine", opts.refine);
+    out_json
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    trand_io::output::check_new_output(&a.out)?;
+    let T0Run {
+        manifest: run_json,
+        options: ropts,
+        channels,
+        surfels,
+    } = load_t0_run(&a.run)?;
+
+    let seq = super::reconstruct::read_sequence(&a.data, ropts.num_objects)?;
+    let fp = trand_pipeline::outputs::sequence_fingerprint(&seq);
+    if run_json.sequence_fingerprint.is_none() {
+        // A run made from in-memory arrays (the Python package's `Scene.save`) names no sequence.
+        eprintln!(
+            "note: {} records no sequence; taking {} to be the one it was reconstructed from",
+            a.run.display(),
+            a.data.display()
+        );
+    } else if run_json.sequence_fingerprint.as_deref() != Some(fp.as_str()) {
+        bail!(
+            "{} was reconstructed from another sequence than {} (field `sequence_fingerprint` {} ≠ {fp})",
+            a.run.display(),
+            a.data.display(),
+            serde_json::json!(run_json.sequence_fingerprint)
+        );
+    }
+    let view = new_view(&a, &seq)?;
+
+    let (opts, t0_associated) = update_options(&a, &run_json, &ropts)?;
 
     // The t = 0 scene extent, for densification at t = 1 (notes §10 row 7).
     let vc = match ropts.views {
@@ -300,46 +389,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let renders = trand_pipeline::outputs::render_views(&up.surfels, &seq.test_t1, &settings)?;
     let total =
         up.detection_s + up.meshing_s + up.simulation_s + up.relocalisation_s + up.refinement_s;
-    let out_json = serde_json::json!({
-        "state": "t1",
-        "method": ropts.method,
-        "views": ropts.views,
-        "t0_run": a.run.canonicalize().unwrap_or(a.run.clone()).to_string_lossy(),
-        "data": a.data.canonicalize().unwrap_or(a.data.clone()).to_string_lossy(),
-        "sequence_fingerprint": fp,
-        "new_image": view.name,
-        "depth_clamp_m": trand_pipeline::outputs::depth_clamp(&seq.test_t1),
-        "object_channels": channels,
-        "matching": up.matches,
-        "removed": up.removed,
-        "removed_by": if opts.removed.is_some() { "user" } else { "detection" },
-        "identity": up.identity,
-        "identity_from_t0": t0_associated,
-        "relocalise": opts.relocalise,
-        "relocations": up.relocations,
-        "movable": up.movable,
-        "deleted_surfels": up.deleted_surfels,
-        "num_particles": up.num_particles,
-        "max_surfel_displacement_m": up.max_displacement_m,
-        "physics": opts.physics,
-        "motion": opts.motion,
-        "refine": opts.refine,
-        "timings": {
-            "detection_s": up.detection_s,
-            "meshing_s": up.meshing_s,
-            "simulation_s": up.simulation_s,
-            "relocalisation_s": up.relocalisation_s,
-            "refinement_s": up.refinement_s,
-            "total_s": total,
-            "test_render_s": t_render.elapsed().as_secs_f64(),
-            "wall_s": t_all.elapsed().as_secs_f64(),
-        },
-        "num_surfels": up.surfels.len(),
-        "loss_curve": up.curve,
-        "peak_rss_mb": trand_pipeline::outputs::peak_rss_mb(),
-        "threads": rayon::current_num_threads(),
-        "trand_version": env!("CARGO_PKG_VERSION"),
-    });
+    let t1 = T1Record {
+        seq: &seq,
+        fingerprint: fp,
+        view: &view,
+        channels,
+        t0_associated,
+        render_s: t_render.elapsed().as_secs_f64(),
+        wall_s: t_all.elapsed().as_secs_f64(),
+    };
+    let out_json = t1_manifest(&a, &ropts, &opts, &up, t1);
     let mut cfg = toml::to_string(&opts).context("serialising the configuration")?;
     if ropts.method == Method::Plain2dgs {
         cfg.insert_str(0, "# plain-2dgs run: no object channels, so no detection and no physics; refinement only\n");

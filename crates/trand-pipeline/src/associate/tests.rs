@@ -284,7 +284,8 @@ fn auto_on_consistent_ids_trains_on_exactly_the_masks_ids_does() {
             identity,
             ..Default::default()
         };
-        train_views(&seq, &opts).unwrap()
+        let t = train_views(&seq, &opts).unwrap();
+        (t.views, t.channels, t.identity)
     };
     let (auto, auto_channels, report) = run(Identity::Auto);
     let (ids, ids_channels, _) = run(Identity::ObjectIds);
@@ -314,8 +315,8 @@ fn auto_on_per_image_ids_trains_on_associated_masks() {
         }
         views.push(view(f, cam, t));
     }
-    let (train, channels, report) =
-        train_views(&sequence(views), &ReconstructOptions::default()).unwrap();
+    let t = train_views(&sequence(views), &ReconstructOptions::default()).unwrap();
+    let (train, channels, report) = (t.views, t.channels, t.identity);
     assert_eq!(report.used, Identity::Overlap);
     assert_eq!(channels.len(), 4);
     // Every training view shows each object under one channel, the same in all of them.

@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use glam::{DMat3, DQuat, DVec3, Quat};
 use trand_core::Surfels;
 
-use crate::simulate::turn;
+use crate::surfel_ops::turn;
 
 /// Edge of the voxels that thin the solid points (m): one point per occupied voxel.
 pub const SOLID_VOXEL_M: f64 = 0.004;

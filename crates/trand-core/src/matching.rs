@@ -1,4 +1,6 @@
-//! Mask IoU and minimum-cost assignment (matching objects before and after the removal).
+//! Mask IoU and minimum-cost assignment: matching objects across views and before and after the
+//! removal (`trand-pipeline`) and predicted to ground-truth objects (`trand-eval`), here so that
+//! neither crate imports the other.
 
 /// Intersection over union of two binary masks of equal length; 0 when both are empty.
 pub fn iou(a: &[bool], b: &[bool]) -> f64 {
