@@ -234,14 +234,7 @@ mod tests {
         for o in &ex.objects {
             assert!(!o.mesh.faces.is_empty(), "object {}: empty mesh", o.id);
             o.mesh.validate().unwrap();
-            assert!(
-                o.mesh
-                    .labels
-                    .as_ref()
-                    .unwrap()
-                    .iter()
-                    .all(|&l| l == o.id)
-            );
+            assert!(o.mesh.labels.as_ref().unwrap().iter().all(|&l| l == o.id));
             // Every mesh vertex lies within the fusion's truncation band of the object's surfels, and
             // half of them within 1.5 voxels (the open-bottomed boxes are also seen from below, so
             // their walls get an inner copy inside the band).
