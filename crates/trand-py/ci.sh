@@ -7,7 +7,8 @@ set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
 python="${PYTHON:-python3}"
-venv="${TRAND_PY_VENV:-$root/target/py-venv}"
+target="${CARGO_TARGET_DIR:-$root/target}"
+venv="${TRAND_PY_VENV:-$target/py-venv}"
 command -v "$python" >/dev/null || { echo "$python is required for the Python package's tests"; exit 1; }
 
 rm -rf "$venv"
@@ -17,4 +18,4 @@ rm -rf "$venv"
 "$venv/bin/python" -m pip install "$here"
 (cd "$root" && cargo build --release -p trand-cli)
 cd "$here"
-TRAND_CLI="$root/target/release/trand" "$venv/bin/python" -m pytest -q tests "$@"
+TRAND_CLI="$target/release/trand" "$venv/bin/python" -m pytest -q tests "$@"
