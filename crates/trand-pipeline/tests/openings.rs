@@ -4,7 +4,7 @@
 use glam::DVec3;
 use trand_core::{Camera, Intrinsics};
 use trand_pipeline::TrainView;
-use trand_pipeline::openings::{Closed, Shape, Top, classify, object_voxels};
+use trand_pipeline::openings::{Closed, Opening, Shape, Top, VesselTop, classify, object_voxels};
 
 /// A solid of revolution about the vertical axis through `at`: `radius(h)` for `h` in `[0, height]`
 /// above `base` (the height of its lowest point), 0 outside.
@@ -104,6 +104,21 @@ fn decide(solids: &[Solid]) -> Vec<Top> {
 
 /// [`decide`] with the hull searched up to `ceiling`.
 fn decide_under(solids: &[Solid], ceiling: f64) -> Vec<Top> {
+    classify_under(solids, ceiling)
+        .1
+        .into_iter()
+        .map(|t| t.top)
+        .collect()
+}
+
+/// The openings among `solids`, the hull searched up to 0.2 m.
+fn openings_of(solids: &[Solid]) -> Vec<Opening> {
+    classify_under(solids, 0.2).0
+}
+
+/// The opening prior on `solids`: masks from the ring of views, the labelled hull in a box up to
+/// `ceiling`, and [`classify`]'s openings and decisions.
+fn classify_under(solids: &[Solid], ceiling: f64) -> (Vec<Opening>, Vec<VesselTop>) {
     let views = views(solids);
     let hull = object_voxels(
         &views,
@@ -112,10 +127,6 @@ fn decide_under(solids: &[Solid], ceiling: f64) -> Vec<Top> {
     );
     let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
     classify(&hull, &cams, ceiling)
-        .1
-        .into_iter()
-        .map(|t| t.top)
-        .collect()
 }
 
 fn solid(at: [f64; 2], base: f64, height: f64, radius: impl Fn(f64) -> f64 + 'static) -> Solid {
@@ -242,14 +253,7 @@ fn a_vessel_something_leans_on_is_open_and_what_leans_is_not_carved() {
     // A rod standing against the tumbler's rim from outside, its top above the rim: its voxels over
     // the opening lie off-centre.
     let rod = solid([0.036, 0.0], 0.0, 0.13, |_| 0.008);
-    let views = views(&[tumbler([0.0, 0.0]), rod]);
-    let hull = object_voxels(
-        &views,
-        DVec3::new(-0.2, -0.2, 0.0),
-        DVec3::new(0.2, 0.2, 0.2),
-    );
-    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
-    let openings = classify(&hull, &cams, 0.2).0;
+    let openings = openings_of(&[tumbler([0.0, 0.0]), rod]);
     assert_eq!(openings.len(), 1, "the tumbler is open, the rod is not");
     let o = &openings[0];
     assert!(o.carves([0.0, 0.0, 0.06]), "the tumbler's inside");
@@ -277,14 +281,7 @@ fn an_object_whose_top_the_hull_box_cuts_off_is_closed() {
 
 #[test]
 fn the_carved_region_is_the_inside_and_the_roof_but_not_the_wall_or_the_base() {
-    let views = views(&[tumbler([0.0, 0.0])]);
-    let hull = object_voxels(
-        &views,
-        DVec3::new(-0.2, -0.2, 0.0),
-        DVec3::new(0.2, 0.2, 0.2),
-    );
-    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
-    let openings = classify(&hull, &cams, 0.2).0;
+    let openings = openings_of(&[tumbler([0.0, 0.0])]);
     assert_eq!(openings.len(), 1);
     let o = &openings[0];
     assert!(o.carves([0.0, 0.0, 0.05]), "inside");
@@ -300,14 +297,7 @@ fn a_stacked_vessel_is_carved_above_its_support_not_into_it() {
     // into the support as a cone, but its carving starts above the support's top.
     let support = solid([0.0, 0.0], 0.0, 0.09, |h| 0.034 - 0.004 * h / 0.09);
     let on_top = solid([0.0, 0.0], 0.0905, 0.08, |h| 0.028 + 0.004 * h / 0.08);
-    let views = views(&[support, on_top]);
-    let hull = object_voxels(
-        &views,
-        DVec3::new(-0.2, -0.2, 0.0),
-        DVec3::new(0.2, 0.2, 0.2),
-    );
-    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
-    let openings = classify(&hull, &cams, 0.2).0;
+    let openings = openings_of(&[support, on_top]);
     assert_eq!(openings.len(), 1, "only the upper tumbler is open");
     let o = &openings[0];
     assert!(
@@ -325,17 +315,10 @@ fn a_stacked_vessel_is_carved_above_its_support_not_into_it() {
 fn a_neighbour_standing_close_does_not_raise_the_floor() {
     // A tall bottle-like cylinder beside a tumbler on the table: some of its hull falls inside the
     // tumbler's rim circle, off-centre; the tumbler is carved down to its own base.
-    let views = views(&[
+    let openings = openings_of(&[
         tumbler([0.0, 0.0]),
         solid([0.062, 0.0], 0.0, 0.14, |_| 0.028),
     ]);
-    let hull = object_voxels(
-        &views,
-        DVec3::new(-0.2, -0.2, 0.0),
-        DVec3::new(0.2, 0.2, 0.2),
-    );
-    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
-    let openings = classify(&hull, &cams, 0.2).0;
     let o = openings
         .iter()
         .find(|o| o.rim_z < 0.1)
