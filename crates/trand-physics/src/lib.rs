@@ -18,7 +18,7 @@ pub mod tsdf;
 pub mod virtual_views;
 
 pub use mesh::{Mesh, MeshError};
-pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume};
+pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume, StopAtRest};
 pub use particles::{
     InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles,
 };

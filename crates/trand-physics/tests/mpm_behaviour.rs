@@ -1,7 +1,7 @@
 //! Physical behaviour of the MPM solver on small scenes: free fall, resting contact, falling onto
 //! the ground, and bit-identical results whatever the number of threads.
 
-use trand_physics::{Ground, MpmConfig, MpmSolver, ParticleVolume};
+use trand_physics::{Ground, MpmConfig, MpmSolver, ParticleVolume, StopAtRest};
 
 /// Particles on a regular lattice of spacing `h` filling the box `[lo, hi)`, offset by `h/2`.
 fn block(lo: [f32; 3], hi: [f32; 3], h: f32) -> Vec<[f32; 3]> {
@@ -191,5 +191,46 @@ fn results_are_bit_identical_for_one_and_many_threads() {
             qbits(&many.2),
             "rotations differ with {threads} threads"
         );
+    }
+}
+
+#[test]
+fn run_stops_once_every_particle_stayed_slower_than_the_threshold_for_its_frames() {
+    // No gravity, no ground: nothing ever moves.
+    let still = MpmConfig {
+        gravity: [0.0; 3],
+        ground: Ground::None,
+        stop_at_rest: StopAtRest::Below {
+            speed: 1e-6,
+            frames: 3,
+        },
+        ..MpmConfig::default()
+    };
+    let x0 = block([0.4, 0.4, 0.1], [0.45, 0.45, 0.15], 1.0 / 96.0);
+    let mut solver = MpmSolver::new(still.clone(), &x0).unwrap();
+    assert_eq!(solver.run(10, |_, _| {}).unwrap(), 3);
+    assert!(solver.at_rest() && solver.frames_done() == 3);
+    let never = MpmConfig {
+        stop_at_rest: StopAtRest::Never,
+        ..still
+    };
+    let mut solver = MpmSolver::new(never, &x0).unwrap();
+    assert_eq!(solver.run(10, |_, _| {}).unwrap(), 10);
+    assert!(!solver.at_rest());
+}
+
+#[test]
+fn a_body_that_lost_its_support_is_never_taken_for_at_rest() {
+    // TRAN-D's criterion on a block starting to fall from rest: it is faster than the threshold
+    // from the first frame on.
+    let cfg = MpmConfig::default();
+    let StopAtRest::Below { speed, .. } = cfg.stop_at_rest else {
+        panic!("the default stops at rest");
+    };
+    let x0 = block([0.45, 0.45, 0.10], [0.51, 0.51, 0.16], cfg.dx / 2.0);
+    let mut solver = MpmSolver::new(cfg, &x0).unwrap();
+    for _ in 0..30 {
+        solver.step_frame().unwrap();
+        assert!(solver.max_speed() > speed && !solver.at_rest());
     }
 }

@@ -1,0 +1,165 @@
+//! Particle storage: packs of [`LANES`] particles, each field one SIMD vector across the pack
+//! (an array of structures of arrays), so that the per-particle material update
+//! ([`super::material`]) runs on four particles per instruction without gathering fields, while
+//! the grid transfers read one particle (one lane) at a time.
+//!
+//! Only the last pack may be partly filled; its free lanes hold a copy of a particle's position at
+//! rest (`v = 0`, `C = 0`, `F = I`): G2P keeps them there, the material update leaves them
+//! unchanged, and P2G skips them.
+
+use glam::{Mat3, Quat, Vec3};
+use rayon::prelude::*;
+use wide::f32x4;
+
+/// Particles per pack: one SSE register of `f32`.
+pub(super) const LANES: usize = 4;
+
+/// A 3×3 matrix per lane, `m[column][row]` like glam's.
+pub(super) type LaneMat3 = [[f32x4; 3]; 3];
+
+/// [`LANES`] material points.
+#[derive(Clone, Copy)]
+pub(super) struct Pack {
+    pub x: [f32x4; 3],
+    pub v: [f32x4; 3],
+    /// APIC affine velocity matrix (≈ ∇v).
+    pub c: LaneMat3,
+    /// Deformation gradient.
+    pub f: LaneMat3,
+    /// Polar rotation of `f` as a quaternion `(x, y, z, w)` (also the warm start of the next
+    /// extraction).
+    pub rot: [f32x4; 4],
+    /// Index of each lane's particle in the caller's input order.
+    pub id: [u32; LANES],
+    /// Lanes in use (`LANES` except possibly in the last pack).
+    pub live: usize,
+}
+
+impl Pack {
+    pub fn x(&self, l: usize) -> Vec3 {
+        Vec3::new(
+            self.x[0].as_array()[l],
+            self.x[1].as_array()[l],
+            self.x[2].as_array()[l],
+        )
+    }
+
+    pub fn v(&self, l: usize) -> Vec3 {
+        Vec3::new(
+            self.v[0].as_array()[l],
+            self.v[1].as_array()[l],
+            self.v[2].as_array()[l],
+        )
+    }
+
+    pub fn f(&self, l: usize) -> Mat3 {
+        lane_mat3(&self.f, l)
+    }
+
+    pub fn rot(&self, l: usize) -> Quat {
+        let q = self.rot.map(|c| c.as_array()[l]);
+        Quat::from_xyzw(q[0], q[1], q[2], q[3])
+    }
+
+    /// Copies lane `from` of `src` into lane `to`.
+    fn set_lane(&mut self, to: usize, src: &Pack, from: usize) {
+        let copy = |d: &mut f32x4, s: &f32x4| d.as_mut_array()[to] = s.as_array()[from];
+        for (d, s) in self
+            .x
+            .iter_mut()
+            .zip(&src.x)
+            .chain(self.v.iter_mut().zip(&src.v))
+        {
+            copy(d, s);
+        }
+        for (dm, sm) in self
+            .c
+            .iter_mut()
+            .zip(&src.c)
+            .chain(self.f.iter_mut().zip(&src.f))
+        {
+            for (d, s) in dm.iter_mut().zip(sm) {
+                copy(d, s);
+            }
+        }
+        for (d, s) in self.rot.iter_mut().zip(&src.rot) {
+            copy(d, s);
+        }
+        self.id[to] = src.id[from];
+    }
+}
+
+/// Lane `l` of a lane matrix.
+pub(super) fn lane_mat3(m: &LaneMat3, l: usize) -> Mat3 {
+    let col =
+        |c: &[f32x4; 3]| Vec3::new(c[0].as_array()[l], c[1].as_array()[l], c[2].as_array()[l]);
+    Mat3::from_cols(col(&m[0]), col(&m[1]), col(&m[2]))
+}
+
+impl Pack {
+    /// Every lane the particle `id` at rest (`v = 0`, `C = 0`, `F = I`, `R = I`) at `x`; no lane
+    /// live yet.
+    fn at_rest(x: [f32; 3], id: u32) -> Self {
+        let (zero, one) = (f32x4::ZERO, f32x4::ONE);
+        Pack {
+            x: x.map(f32x4::splat),
+            v: [zero; 3],
+            c: [[zero; 3]; 3],
+            f: [[one, zero, zero], [zero, one, zero], [zero, zero, one]],
+            rot: [zero, zero, zero, one],
+            id: [id; LANES],
+            live: 0,
+        }
+    }
+}
+
+/// Packs of particles at rest at `positions`, in that order.
+pub(super) fn packs_at_rest(positions: &[[f32; 3]]) -> Vec<Pack> {
+    positions
+        .chunks(LANES)
+        .enumerate()
+        .map(|(k, ps)| {
+            let first = (k * LANES) as u32;
+            let rest = |l: usize| Pack::at_rest(ps[l], first + l as u32);
+            let mut p = rest(0);
+            for l in 1..ps.len() {
+                p.set_lane(l, &rest(l), l);
+            }
+            p.live = ps.len();
+            p
+        })
+        .collect()
+}
+
+/// Reorders the particles of `packs` stably by `key` of their position when they are not in that
+/// order already.
+pub(super) fn sort_packs(packs: &mut Vec<Pack>, key: impl Fn(Vec3) -> u64 + Sync) {
+    let key = &key;
+    let keyed: Vec<(u64, u32)> = packs
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(k, p)| (0..p.live).map(move |l| (key(p.x(l)), (k * LANES + l) as u32)))
+        .collect();
+    if keyed.is_sorted_by_key(|k| k.0) {
+        return;
+    }
+    let mut keyed = keyed;
+    // Stable and adaptive (the order of the last frame is nearly sorted).
+    keyed.sort_by_key(|k| k.0);
+    let old = std::mem::take(packs);
+    *packs = keyed
+        .par_chunks(LANES)
+        .map(|group| {
+            let at = |i: u32| (&old[i as usize / LANES], i as usize % LANES);
+            let (src, sl) = at(group[0].1);
+            // Free lanes: the first particle at rest.
+            let mut p = Pack::at_rest(src.x(sl).to_array(), src.id[sl]);
+            for (l, &(_, i)) in group.iter().enumerate() {
+                let (src, sl) = at(i);
+                p.set_lane(l, src, sl);
+            }
+            p.live = group.len();
+            p
+        })
+        .collect();
+}
