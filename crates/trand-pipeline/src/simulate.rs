@@ -129,13 +129,17 @@ pub struct Simulation {
     /// The TSDF mesh, vertices labelled by object.
     pub mesh: trand_io::Mesh,
     pub num_particles: usize,
+    /// Frames simulated: `opts.mpm.frames`, or fewer when every particle came to rest before
+    /// ([`trand_physics::StopAtRest`]); 0 without particles.
+    pub frames: u32,
     /// The largest distance a surfel centre moved (metres).
     pub max_displacement_m: f32,
     pub meshing_s: f64,
     pub simulation_s: f64,
 }
 
-/// Steps 3–5: mesh, particles, MPM; moves `surfels` in place. Stops with
+/// Steps 3–5: mesh, particles, MPM (up to `opts.mpm.frames` frames, ending early at rest as
+/// `opts.mpm.stop_at_rest` says); moves `surfels` in place. Stops with
 /// [`PipelineError::Interrupted`] after the meshing or the simulated frame during which `cancel` was set.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
@@ -195,15 +199,16 @@ pub fn simulate(
     let set = build_particles(&objs, &mesh_for_particles, opts.fill)
         .map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
     let mut max_disp = 0.0f32;
+    let mut frames = 0;
     if !set.positions.is_empty() {
         let mut solver = MpmSolver::new(opts.mpm.clone(), &set.positions)
             .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
-        let frames = opts.mpm.frames;
-        for i in 0..frames {
+        while frames < opts.mpm.frames && !solver.at_rest() {
             solver
                 .step_frame()
                 .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
-            progress("simulation", i + 1, frames);
+            frames += 1;
+            progress("simulation", frames, opts.mpm.frames);
             stop()?;
         }
         let pos = solver.positions();
@@ -240,6 +245,7 @@ pub fn simulate(
     Ok(Simulation {
         mesh: io_mesh(&mesh),
         num_particles: set.positions.len(),
+        frames,
         max_displacement_m: max_disp,
         meshing_s,
         simulation_s,

@@ -49,6 +49,8 @@ pub struct Update {
     pub movable: Vec<u16>,
     pub mesh: Option<trand_io::Mesh>,
     pub num_particles: usize,
+    /// MPM frames simulated (fewer than configured when the scene came to rest; 0 without physics).
+    pub simulated_frames: u32,
     pub max_displacement_m: f32,
     pub detection_s: f64,
     pub meshing_s: f64,
@@ -182,7 +184,7 @@ pub fn update_with_cancel(
         .collect();
     // The undeformed shapes, for the relocalisation's candidates (only copied when it will run).
     let unmoved = relocalising.then(|| surfels.clone());
-    let (mesh, num_particles, max_disp, meshing_s, simulation_s) =
+    let (mesh, num_particles, simulated_frames, max_disp, meshing_s, simulation_s) =
         if opts.physics == Stage::On && object_aware && !surfels.is_empty() {
             let s = simulate(
                 &mut surfels,
@@ -197,12 +199,13 @@ pub fn update_with_cancel(
             (
                 Some(s.mesh),
                 s.num_particles,
+                s.frames,
                 s.max_displacement_m,
                 s.meshing_s,
                 s.simulation_s,
             )
         } else {
-            (None, 0, 0.0, 0.0, 0.0)
+            (None, 0, 0, 0.0, 0.0, 0.0)
         };
 
     let t_reloc = Instant::now();
@@ -306,6 +309,7 @@ pub fn update_with_cancel(
         movable,
         mesh,
         num_particles,
+        simulated_frames,
         max_displacement_m: max_disp,
         detection_s,
         meshing_s,

@@ -302,6 +302,7 @@ impl Scene {
             "movable": up.movable,
             "deleted_surfels": up.deleted_surfels,
             "num_particles": up.num_particles,
+            "simulated_frames": up.simulated_frames,
             "max_surfel_displacement_m": up.max_displacement_m,
             "timings": {
                 "detection_s": up.detection_s,

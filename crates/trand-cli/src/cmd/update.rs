@@ -298,6 +298,7 @@ fn t1_manifest(
         .detail("movable", &up.movable)
         .detail("deleted_surfels", up.deleted_surfels)
         .detail("num_particles", up.num_particles)
+        .detail("simulated_frames", up.simulated_frames)
         .detail("max_surfel_displacement_m", up.max_displacement_m)
         .detail("physics", opts.physics)
         .detail("motion", opts.motion)
