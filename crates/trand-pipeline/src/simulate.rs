@@ -130,7 +130,7 @@ pub struct Simulation {
     pub mesh: trand_io::Mesh,
     pub num_particles: usize,
     /// Frames simulated: `opts.mpm.frames`, or fewer when every particle came to rest before
-    /// ([`trand_physics::StopAtRest`]); 0 without particles.
+    /// ([`trand_physics::StopAtRest`]); 0 without particles or without a movable object.
     pub frames: u32,
     /// The largest distance a surfel centre moved (metres).
     pub max_displacement_m: f32,
@@ -139,8 +139,9 @@ pub struct Simulation {
 }
 
 /// Steps 3–5: mesh, particles, MPM (up to `opts.mpm.frames` frames, ending early at rest as
-/// `opts.mpm.stop_at_rest` says); moves `surfels` in place. Stops with
-/// [`PipelineError::Interrupted`] after the meshing or the simulated frame during which `cancel` was set.
+/// `opts.mpm.stop_at_rest` says, none when no object is `movable`); moves `surfels` in place.
+/// Stops with [`PipelineError::Interrupted`] after the meshing or the simulated frame during which
+/// `cancel` was set.
 #[allow(clippy::too_many_arguments)]
 pub fn simulate(
     surfels: &mut Surfels,
@@ -200,7 +201,9 @@ pub fn simulate(
         .map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
     let mut max_disp = 0.0f32;
     let mut frames = 0;
-    if !set.positions.is_empty() {
+    // Objects that are not `movable` are put back where they were after the simulation, so with
+    // none movable the simulation cannot change anything: it is skipped (0 frames).
+    if !set.positions.is_empty() && !movable.is_empty() {
         let mut solver = MpmSolver::new(opts.mpm.clone(), &set.positions)
             .map_err(|e| PipelineError::Invalid(format!("MPM: {e}")))?;
         while frames < opts.mpm.frames && !solver.at_rest() {
