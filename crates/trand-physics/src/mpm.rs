@@ -57,7 +57,7 @@ mod stencil;
 mod store;
 mod transfer;
 
-use glam::{IVec3, Mat3, Quat, Vec3, Vec4};
+use glam::{IVec3, Mat3, Quat, Vec4};
 use rayon::prelude::*;
 
 use config::StepParams;
@@ -233,8 +233,9 @@ impl MpmSolver {
     /// nodes: each chunk stays spatially compact, and particles sharing a stencil are adjacent.
     fn sort_particles(&mut self) {
         let inv_dx = 1.0 / self.config.dx;
-        store::sort_packs(&mut self.packs, |x: Vec3| {
-            sort_key(stencil::base_node(x, inv_dx))
+        store::sort_packs(&mut self.packs, |p: &Pack| {
+            let st = stencil::PackStencil::new(&p.x, inv_dx);
+            std::array::from_fn(|l| sort_key(st.base(l)))
         });
     }
 

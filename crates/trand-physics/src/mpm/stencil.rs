@@ -92,7 +92,8 @@ impl PackStencil {
     }
 }
 
-/// Base node of one position (lane 0 of the pack computation): the particle sort's key.
+/// Base node of one position (lane 0 of the pack computation).
+#[cfg(test)]
 pub(super) fn base_node(x: glam::Vec3, inv_dx: f32) -> IVec3 {
     let lanes = [f32x4::splat(x.x), f32x4::splat(x.y), f32x4::splat(x.z)];
     PackStencil::new(&lanes, inv_dx).base(0)

@@ -63,28 +63,17 @@ impl Pack {
 
     /// Copies lane `from` of `src` into lane `to`.
     fn set_lane(&mut self, to: usize, src: &Pack, from: usize) {
-        let copy = |d: &mut f32x4, s: &f32x4| d.as_mut_array()[to] = s.as_array()[from];
-        for (d, s) in self
-            .x
-            .iter_mut()
-            .zip(&src.x)
-            .chain(self.v.iter_mut().zip(&src.v))
-        {
-            copy(d, s);
-        }
-        for (dm, sm) in self
-            .c
-            .iter_mut()
-            .zip(&src.c)
-            .chain(self.f.iter_mut().zip(&src.f))
-        {
-            for (d, s) in dm.iter_mut().zip(sm) {
-                copy(d, s);
+        assert!(to < LANES && from < LANES);
+        let copy = |d: &mut [f32x4], s: &[f32x4]| {
+            for (d, s) in d.iter_mut().zip(s) {
+                d.as_mut_array()[to] = s.as_array()[from];
             }
-        }
-        for (d, s) in self.rot.iter_mut().zip(&src.rot) {
-            copy(d, s);
-        }
+        };
+        copy(&mut self.x, &src.x);
+        copy(&mut self.v, &src.v);
+        copy(self.c.as_flattened_mut(), src.c.as_flattened());
+        copy(self.f.as_flattened_mut(), src.f.as_flattened());
+        copy(&mut self.rot, &src.rot);
         self.id[to] = src.id[from];
     }
 }
@@ -131,14 +120,17 @@ pub(super) fn packs_at_rest(positions: &[[f32; 3]]) -> Vec<Pack> {
         .collect()
 }
 
-/// Reorders the particles of `packs` stably by `key` of their position when they are not in that
+/// Reorders the particles of `packs` stably by their `keys` (per pack) when they are not in that
 /// order already.
-pub(super) fn sort_packs(packs: &mut Vec<Pack>, key: impl Fn(Vec3) -> u64 + Sync) {
-    let key = &key;
+pub(super) fn sort_packs(packs: &mut Vec<Pack>, keys: impl Fn(&Pack) -> [u64; LANES] + Sync) {
+    let keys = &keys;
     let keyed: Vec<(u64, u32)> = packs
         .par_iter()
         .enumerate()
-        .flat_map_iter(|(k, p)| (0..p.live).map(move |l| (key(p.x(l)), (k * LANES + l) as u32)))
+        .flat_map_iter(|(k, p)| {
+            let keys = keys(p);
+            (0..p.live).map(move |l| (keys[l], (k * LANES + l) as u32))
+        })
         .collect();
     if keyed.is_sorted_by_key(|k| k.0) {
         return;
