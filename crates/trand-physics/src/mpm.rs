@@ -433,12 +433,17 @@ mod tests {
 
     #[test]
     fn particles_spanning_too_large_a_region_give_an_error_not_an_abort() {
-        let far = [[0.0, 0.0, 0.0], [1e9, -1e9, 3e9]];
-        let mut solver = MpmSolver::new(MpmConfig::default(), &far).unwrap();
-        assert!(matches!(
-            solver.step_frame(),
-            Err(MpmError::GridTooLarge { .. })
-        ));
+        // Far beyond the i32 node range on both sides, too.
+        for far in [
+            [[0.0, 0.0, 0.0], [1e9, -1e9, 3e9]],
+            [[-1e12, 0.0, 0.0], [1e12, 0.0, 0.0]],
+        ] {
+            let mut solver = MpmSolver::new(MpmConfig::default(), &far).unwrap();
+            assert!(matches!(
+                solver.step_frame(),
+                Err(MpmError::GridTooLarge { .. })
+            ));
+        }
     }
 
     #[test]

@@ -57,12 +57,12 @@ impl ChunkGrid {
     /// Sizes the grid for stencils with base nodes in `[lo, hi]` (refused, with nothing
     /// allocated, when that exceeds `max_nodes`: a particle flung far away, or a NaN).
     fn set_box(&mut self, lo: IVec3, hi: IVec3, max_nodes: usize) {
+        // Counted in i64: the extent of a refused box may not fit an i32.
         let nodes = grid_nodes(lo, hi, 3);
-        self.too_large = (nodes > max_nodes).then_some(nodes);
-        self.lo = lo;
-        self.dims = hi - lo + IVec3::splat(3);
         self.nodes.clear();
+        self.too_large = (nodes > max_nodes).then_some(nodes);
         if self.too_large.is_none() {
+            (self.lo, self.dims) = (lo, hi - lo + IVec3::splat(3));
             self.nodes.resize(nodes, Vec4::ZERO);
         }
     }
