@@ -23,7 +23,7 @@ use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::openings::{Opening, VesselTop};
 use crate::support::{Support, SupportPrior};
-use crate::targets::{self, Supervision, TrainView};
+use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
 
@@ -213,6 +213,8 @@ pub type Channels = Vec<(u16, usize)>;
 #[derive(Clone, Debug)]
 pub struct TrainViews {
     pub views: Vec<TrainView>,
+    /// The views at the coarse levels of `opts.train.resolution`.
+    pub coarse: Vec<CoarseViews>,
     pub channels: Channels,
     /// How the masks' ids were taken.
     pub identity: IdentityReport,
@@ -256,21 +258,37 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         report.association = Some(assoc);
     }
     let channels = targets::channel_map(&object_ids, opts.num_objects)?;
-    let views = chosen
-        .iter()
-        .map(|v| {
-            targets::build(
-                v,
-                &channels,
-                opts.num_objects,
-                opts.train.background,
-                sup,
-                opts.downsample,
-            )
+    let build_at = |factor: u32| {
+        chosen
+            .iter()
+            .map(|v| {
+                targets::build(
+                    v,
+                    &channels,
+                    opts.num_objects,
+                    opts.train.background,
+                    sup,
+                    factor,
+                )
+            })
+            .collect::<Result<Vec<_>>>()
+    };
+    let views = build_at(opts.downsample)?;
+    let coarse = opts
+        .train
+        .resolution
+        .coarse_factors(opts.downsample)
+        .into_iter()
+        .map(|factor| {
+            Ok(CoarseViews {
+                factor,
+                views: build_at(factor)?,
+            })
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(TrainViews {
         views,
+        coarse,
         channels,
         identity: report,
     })
@@ -587,6 +605,7 @@ pub fn reconstruct_from(
     let t0 = Instant::now();
     let TrainViews {
         views,
+        coarse,
         channels,
         identity,
     } = train_views(seq, opts)?;
@@ -624,7 +643,8 @@ pub fn reconstruct_from(
 
     let t1 = Instant::now();
     let mut initial = surfels.len();
-    let mut trainer = Trainer::new(surfels, cfg, &views, extent, opts.method.supervision());
+    let mut trainer =
+        Trainer::new(surfels, cfg, &views, extent, opts.method.supervision()).with_coarse(&coarse);
     let mut curve = Vec::new();
     match resume {
         Some((adam, stats, rng, stack, c, init)) => {

@@ -43,6 +43,14 @@ pub struct TrainView {
     pub ids: Vec<u16>,
 }
 
+/// The training views box-downsampled by `factor` from native resolution, for a coarse level of a
+/// [`trand_train::config::ResolutionSchedule`]; same order as the training views.
+#[derive(Clone, Debug)]
+pub struct CoarseViews {
+    pub factor: u32,
+    pub views: Vec<TrainView>,
+}
+
 /// Colour of object channel `c` in the colour-coded mask: evenly spaced hues, full saturation, so that
 /// any two objects differ in at least one channel by ≥ 0.5. Channel 0 (background) is black.
 pub fn palette(c: usize) -> [f32; 3] {

@@ -297,6 +297,85 @@ impl Default for ImageLossConfig {
     }
 }
 
+/// One coarse level of a [`ResolutionSchedule`]: iterations up to `until` (inclusive) fit the images
+/// box-downsampled by `factor` from their native resolution (never finer than the training
+/// downsampling: at `--downsample 2` a level of factor 2 trains at the training resolution).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResolutionLevel {
+    pub factor: u32,
+    pub until: u32,
+}
+
+/// The largest factor a coarse level may use (640×480 → 40×30).
+pub const MAX_COARSE_FACTOR: u32 = 16;
+
+/// Coarse-to-fine training resolution (the schedule of DashGaussian, Chen et al. 2025, in steps).
+///
+/// The early iterations move surfels by centimetres and split them; the image detail they are fitted
+/// to matters only once the geometry has settled. Fitting downsampled images then costs a quarter
+/// (factor 2) or a sixteenth (factor 4) of the per-pixel work — the rasterizer's tile kernels, SSIM
+/// and the photometric losses — while the per-surfel work is unchanged. The last iterations fit the
+/// training resolution, so the depth read out at native resolution sees native detail.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResolutionSchedule {
+    /// Every iteration at the training resolution.
+    Full,
+    /// Levels in increasing `until`: iteration `it` uses the first level with `it ≤ until`, and the
+    /// training resolution after the last one.
+    CoarseToFine(Vec<ResolutionLevel>),
+}
+
+impl ResolutionSchedule {
+    /// The downsampling factor from native resolution of iteration `it` (1 after the last level).
+    pub fn factor_at(&self, it: u32) -> u32 {
+        match self {
+            Self::Full => 1,
+            Self::CoarseToFine(levels) => levels
+                .iter()
+                .find(|l| it <= l.until)
+                .map_or(1, |l| l.factor),
+        }
+    }
+
+    /// The distinct factors coarser than the training downsampling `finest`, in the order the schedule
+    /// first uses them.
+    pub fn coarse_factors(&self, finest: u32) -> Vec<u32> {
+        let mut out = Vec::new();
+        if let Self::CoarseToFine(levels) = self {
+            for l in levels {
+                if l.factor > finest && !out.contains(&l.factor) {
+                    out.push(l.factor);
+                }
+            }
+        }
+        out
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        let Self::CoarseToFine(levels) = self else {
+            return Ok(());
+        };
+        for (i, l) in levels.iter().enumerate() {
+            if l.factor == 0 || l.factor > MAX_COARSE_FACTOR {
+                return Err(format!(
+                    "resolution level {i}: factor {} outside 1..={MAX_COARSE_FACTOR}",
+                    l.factor
+                ));
+            }
+            if i > 0 && l.until <= levels[i - 1].until {
+                return Err(format!(
+                    "resolution level {i}: until {} is not after the previous level's {}",
+                    l.until,
+                    levels[i - 1].until
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Everything that controls one optimisation run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -311,6 +390,8 @@ pub struct TrainConfig {
     pub densify: DensifyConfig,
     pub object_loss: ObjectLossConfig,
     pub geometry_loss: GeometryLossConfig,
+    /// Training resolution per iteration.
+    pub resolution: ResolutionSchedule,
     /// SH degree (0: the released code's effective degree, §10 row 10).
     pub sh_degree: u32,
     /// Rasterizer near plane (metres).
@@ -331,6 +412,7 @@ impl Default for TrainConfig {
             densify: DensifyConfig::default(),
             object_loss: ObjectLossConfig::default(),
             geometry_loss: GeometryLossConfig::default(),
+            resolution: ResolutionSchedule::Full,
             sh_degree: 0,
             near: 0.2,
             background: [0.0; 3],
@@ -356,6 +438,7 @@ impl TrainConfig {
         c.densify.from_iteration = 1000;
         c.densify.opacity_reset = Periodic::Never;
         c.object_loss.active = Activation::Never;
+        c.resolution = ResolutionSchedule::Full;
         c
     }
 
@@ -431,6 +514,9 @@ impl TrainConfig {
         if !(eps.is_finite() && eps > 0.0) {
             return bad(format!("adam.eps = {eps}: must be positive"));
         }
+        if let Err(m) = self.resolution.validate() {
+            return bad(m);
+        }
         if !(self.near.is_finite() && self.near > 0.0) {
             return bad(format!("near = {}: must be positive", self.near));
         }
@@ -461,6 +547,54 @@ impl TrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn levels(l: &[(u32, u32)]) -> ResolutionSchedule {
+        ResolutionSchedule::CoarseToFine(
+            l.iter()
+                .map(|&(factor, until)| ResolutionLevel { factor, until })
+                .collect(),
+        )
+    }
+
+    #[test]
+    fn resolution_levels_apply_up_to_and_including_their_last_iteration() {
+        let s = levels(&[(4, 300), (2, 700)]);
+        let f: Vec<u32> = [1, 300, 301, 700, 701, 1000]
+            .iter()
+            .map(|&it| s.factor_at(it))
+            .collect();
+        assert_eq!(f, [4, 4, 2, 2, 1, 1]);
+        assert_eq!(s.coarse_factors(1), [4, 2]);
+        assert_eq!(s.coarse_factors(2), [4]);
+        assert_eq!(ResolutionSchedule::Full.factor_at(1), 1);
+        assert!(ResolutionSchedule::Full.coarse_factors(1).is_empty());
+    }
+
+    #[test]
+    fn resolution_levels_out_of_order_or_out_of_range_are_refused() {
+        for bad in [
+            levels(&[(2, 700), (4, 300)]),
+            levels(&[(0, 10)]),
+            levels(&[(32, 10)]),
+        ] {
+            let c = TrainConfig {
+                resolution: bad.clone(),
+                ..TrainConfig::default()
+            };
+            assert!(c.validate().is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn resolution_schedule_reads_from_toml_and_the_t1_refinement_overrides_it() {
+        let c = TrainConfig::from_toml_str(
+            "resolution = { coarse_to_fine = [{ factor = 4, until = 300 }, { factor = 2, until = 700 }] }",
+        )
+        .unwrap();
+        assert_eq!(c.resolution, levels(&[(4, 300), (2, 700)]));
+        assert_eq!(TrainConfig::from_toml_str(&c.to_toml_string()).unwrap(), c);
+        assert_eq!(TrainConfig::t1().resolution, ResolutionSchedule::Full);
+    }
 
     #[test]
     fn adam_beta1_at_or_above_one_and_eps_not_positive_are_refused() {
