@@ -677,6 +677,9 @@ pub fn reconstruct_from(
         if cancel.load(Ordering::SeqCst) && it < last {
             return Err(PipelineError::Interrupted(it));
         }
+        if trainer.cfg.early_stop.stops(&curve) {
+            break;
+        }
     }
     let optimise_s = t1.elapsed().as_secs_f64();
     let mut surfels = trainer.surfels;

@@ -268,22 +268,37 @@ pub fn update_with_cancel(
             map = remaining.clone();
         }
         let ds = opts.downsample.unwrap_or(scale.downsample);
-        let tv = targets::build(
-            &view,
-            &map,
-            surfels.num_objects,
-            opts.train.background,
-            supervision,
-            ds,
-        )?;
-        let views = [tv];
+        let build = |factor: u32| {
+            targets::build(
+                &view,
+                &map,
+                surfels.num_objects,
+                opts.train.background,
+                supervision,
+                factor,
+            )
+        };
+        let views = [build(ds)?];
+        let coarse = opts
+            .train
+            .resolution
+            .coarse_factors(ds)
+            .into_iter()
+            .map(|factor| {
+                Ok(targets::CoarseViews {
+                    factor,
+                    views: vec![build(factor)?],
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
         let mut trainer = Trainer::new(
             surfels,
             opts.train.clone(),
             &views,
             scale.extent,
             supervision,
-        );
+        )
+        .with_coarse(&coarse);
         let last = opts.train.start_iteration + opts.train.iterations;
         for it in opts.train.start_iteration + 1..=last {
             let rep = trainer.step(it, it == last)?;
@@ -291,6 +306,9 @@ pub fn update_with_cancel(
             on_step(&rep);
             if it < last {
                 stop(it)?;
+            }
+            if opts.train.early_stop.stops(&curve) {
+                break;
             }
         }
         surfels = trainer.surfels;

@@ -376,6 +376,45 @@ impl ResolutionSchedule {
     }
 }
 
+/// When an optimisation may end before its last iteration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EarlyStop {
+    /// Every iteration runs.
+    Never,
+    /// Stop once `min_iterations` have run and the loss fell by less than `min_decrease` (relative)
+    /// over the last `window` iterations: `L(i − window) − L(i) < min_decrease · L(i − window)`.
+    ///
+    /// Meant for the one-view refinement, whose loss on its single image falls steadily and then
+    /// flattens; at t = 0 the opacity resets make the loss jump every 100 iterations.
+    Plateau {
+        window: u32,
+        min_decrease: f64,
+        min_iterations: u32,
+    },
+}
+
+impl EarlyStop {
+    /// Whether to stop after the last entry of `curve` (this run's `(iteration, loss)`, one per
+    /// iteration, in order).
+    pub fn stops(self, curve: &[(u32, f32)]) -> bool {
+        let EarlyStop::Plateau {
+            window,
+            min_decrease,
+            min_iterations,
+        } = self
+        else {
+            return false;
+        };
+        let (n, w) = (curve.len(), window as usize);
+        if n < min_iterations as usize || w == 0 || n <= w {
+            return false;
+        }
+        let (then, now) = (curve[n - 1 - w].1 as f64, curve[n - 1].1 as f64);
+        then - now < min_decrease * then
+    }
+}
+
 /// Everything that controls one optimisation run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -392,6 +431,7 @@ pub struct TrainConfig {
     pub geometry_loss: GeometryLossConfig,
     /// Training resolution per iteration.
     pub resolution: ResolutionSchedule,
+    pub early_stop: EarlyStop,
     /// SH degree (0: the released code's effective degree, §10 row 10).
     pub sh_degree: u32,
     /// Rasterizer near plane (metres).
@@ -413,6 +453,7 @@ impl Default for TrainConfig {
             object_loss: ObjectLossConfig::default(),
             geometry_loss: GeometryLossConfig::default(),
             resolution: ResolutionSchedule::Full,
+            early_stop: EarlyStop::Never,
             sh_degree: 0,
             near: 0.2,
             background: [0.0; 3],
@@ -439,6 +480,12 @@ impl TrainConfig {
         c.densify.opacity_reset = Periodic::Never;
         c.object_loss.active = Activation::Never;
         c.resolution = ResolutionSchedule::Full;
+        // Past the densification at 1050 and ten iterations to settle after it.
+        c.early_stop = EarlyStop::Plateau {
+            window: 10,
+            min_decrease: 0.01,
+            min_iterations: 60,
+        };
         c
     }
 
@@ -554,6 +601,21 @@ mod tests {
                 .map(|&(factor, until)| ResolutionLevel { factor, until })
                 .collect(),
         )
+    }
+
+    #[test]
+    fn plateau_stops_only_after_min_iterations_and_a_small_relative_decrease() {
+        let rule = EarlyStop::Plateau {
+            window: 2,
+            min_decrease: 0.1,
+            min_iterations: 4,
+        };
+        let curve = |l: &[f32]| -> Vec<(u32, f32)> { (1..).zip(l.iter().copied()).collect() };
+        // 1.0 → 0.95 over two iterations is a 5 % decrease, but only three iterations have run.
+        assert!(!rule.stops(&curve(&[2.0, 1.0, 0.97])));
+        assert!(rule.stops(&curve(&[2.0, 1.0, 0.97, 0.95])));
+        assert!(!rule.stops(&curve(&[2.0, 1.0, 0.95, 0.85])));
+        assert!(!EarlyStop::Never.stops(&curve(&[1.0; 100])));
     }
 
     #[test]
