@@ -479,8 +479,8 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
     let mut displacement = BTreeMap::new();
     let mut snapped = Vec::new();
     for (k, &i) in keep.iter().enumerate() {
-        let pts = &layout.objects[i].model.mesh.positions;
-        let max_mm = physics::max_vertex_displacement_mm(pts, &rest0[i], &rest1[k]);
+        let pts: Vec<glam::Vec3> = layout.objects[i].model.mesh.points().collect();
+        let max_mm = physics::max_vertex_displacement_mm(&pts, &rest0[i], &rest1[k]);
         let snap = max_mm < physics::STATIC_SNAP_MM;
         if snap {
             rest1[k] = rest0[i];
