@@ -50,8 +50,8 @@ pub enum TsdfError {
 
 /// Fusion parameters. [`TsdfSettings::tran_d`] gives the authors' choice (Open3D
 /// `ScalableTSDFVolume` in `GaussianExtractor.extract_mesh_bounded`): depth range `2·radius`,
-/// voxel `range / 256`, truncation `5·voxel`, with `radius` the smallest camera distance to the
-/// focus point ([`crate::virtual_views::scene_radius`]).
+/// voxel `range / 256`, truncation `5·voxel`, with `radius` the scene radius of the cameras
+/// ([`crate::virtual_views::scene_radius`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TsdfSettings {
     pub voxel: f32,
