@@ -22,7 +22,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use trand_core::Surfels;
+use trand_core::{Mesh, Surfels};
 use trand_io::View;
 use trand_render::{GeometryMaps, Maps, RenderSettings};
 
@@ -47,7 +47,7 @@ pub struct Update {
     pub relocations: Vec<Relocation>,
     /// Objects in contact (transitively) with a removed one: the only ones the simulation may move.
     pub movable: Vec<u16>,
-    pub mesh: Option<trand_io::Mesh>,
+    pub mesh: Option<Mesh>,
     pub num_particles: usize,
     pub max_displacement_m: f32,
     pub detection_s: f64,

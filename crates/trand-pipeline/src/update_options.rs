@@ -166,8 +166,9 @@ impl UpdateOptions {
 pub struct SceneScale {
     /// 1.1 × the largest distance of a t = 0 training camera from their mean (densification unit).
     pub extent: f32,
-    /// Mean distance of the t = 0 training cameras from the point they look at: sets the TSDF voxel
-    /// `2·radius/256` as the authors' code does with its camera radius.
+    /// The scene radius ([`trand_physics::scene_radius`]) of the t = 0 training cameras, 0.5 m when
+    /// they have no focus point: sets the TSDF voxel `2·radius/256` as the authors' code does with
+    /// its camera radius.
     pub radius: f32,
     /// The t = 0 run's training downsampling.
     pub downsample: u32,
@@ -177,15 +178,7 @@ impl SceneScale {
     /// The scale of a t = 0 run trained on `cameras`.
     pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
         let extent = crate::trainer::camera_extent(cameras);
-        let radius = trand_core::camera::focus_point(cameras)
-            .map(|f| {
-                cameras
-                    .iter()
-                    .map(|c| (c.center() - f).length())
-                    .sum::<f64>()
-                    / cameras.len().max(1) as f64
-            })
-            .unwrap_or(0.5) as f32;
+        let radius = trand_physics::scene_radius(cameras).unwrap_or(0.5) as f32;
         Self {
             extent,
             radius,
