@@ -274,16 +274,21 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
             .collect::<Result<Vec<_>>>()
     };
     let views = build_at(opts.downsample)?;
+    let native = chosen
+        .iter()
+        .filter_map(|v| v.rgb.as_ref().map(|i| (i.width, i.height)))
+        .fold((u32::MAX, u32::MAX), |a, b| (a.0.min(b.0), a.1.min(b.1)));
     let coarse = opts
         .train
         .resolution
         .coarse_factors(opts.downsample)
         .into_iter()
-        .map(|factor| {
-            Ok(CoarseViews {
-                factor,
-                views: build_at(factor)?,
-            })
+        .filter_map(|level| {
+            let f = targets::coarse_factor(level, opts.downsample, native.0, native.1)?;
+            Some(build_at(f).map(|views| CoarseViews {
+                factor: level,
+                views,
+            }))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(TrainViews {

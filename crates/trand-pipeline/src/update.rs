@@ -279,16 +279,18 @@ pub fn update_with_cancel(
             )
         };
         let views = [build(ds)?];
+        let (w, h) = view.rgb.as_ref().map_or((0, 0), |i| (i.width, i.height));
         let coarse = opts
             .train
             .resolution
             .coarse_factors(ds)
             .into_iter()
-            .map(|factor| {
-                Ok(targets::CoarseViews {
-                    factor,
-                    views: vec![build(factor)?],
-                })
+            .filter_map(|level| {
+                let f = targets::coarse_factor(level, ds, w, h)?;
+                Some(build(f).map(|v| targets::CoarseViews {
+                    factor: level,
+                    views: vec![v],
+                }))
             })
             .collect::<Result<Vec<_>>>()?;
         let mut trainer = Trainer::new(

@@ -23,12 +23,9 @@ fn tiny(seed: u64, dir: &Path) -> Sequence {
 }
 
 fn options() -> ReconstructOptions {
-    let mut o = ReconstructOptions {
-        downsample: 2,
-        ..Default::default()
-    };
+    let mut o = ReconstructOptions::default();
     // Past densifications (every 20 from 20), the opacity reset (100) and into the object loss (> 100);
-    // from the coarse level to the training resolution after iteration 60.
+    // from the coarse level (80×60) to the training resolution (160×120) after iteration 60.
     o.train.iterations = 125;
     o.train.resolution = ResolutionSchedule::CoarseToFine(vec![ResolutionLevel {
         factor: 2,
