@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Reproduces the figures of BENCHMARKS.md. Prints the machine, the commit and the date first.
 #
-#   bench/run_all.sh PART [OUT]     PART: blender | containers | default | time | raster | mpm | all
+#   bench/run_all.sh PART [OUT]     PART: blender | containers | default | time | raster | mpm | speed | all
 #
 # blender     every public Blender sequence (../shared/data/blender/seq_*), the defaults (native
 #             resolution): t=0 and t=1, pooled, per sequence, per object and per kind
@@ -11,7 +11,8 @@
 #             otherwise idle machine)
 # raster      the rasterizer's divan benchmarks
 # mpm         trand's MLS-MPM on the authors' fixture, then the Taichi script beside it when a Python
-#             with taichi is given in TAICHI_PYTHON
+#             with taichi is given in TAICHI_PYTHON (process CPU time of both)
+# speed       every speed figure: time, raster and mpm, one after the other
 #
 # The data folder is ../shared/data unless TRAND_DATA says otherwise. Results go to OUT
 # (default bench-out/); the accuracy parts are resumable (`trand bench` skips finished runs).
@@ -84,6 +85,7 @@ case "$PART" in
     time) time_runs ;;
     raster) raster ;;
     mpm) mpm ;;
+    speed) time_runs; raster; mpm ;;
     all) blender; containers; default; time_runs; raster; mpm ;;
     *) echo "unknown part $PART"; exit 2 ;;
 esac

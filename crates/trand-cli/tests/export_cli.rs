@@ -3,31 +3,15 @@
 //! hand-made run, the splats read back as the run's surfels, and bad input is refused with the file
 //! named and nothing written.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
+use std::path::Path;
+
+use common::{ok, tiny_run, trand_in};
 use glam::{Quat, Vec3};
 use trand_core::Surfels;
 use trand_core::surfels::Surfel;
 use trand_io::ScratchDir;
-
-fn trand(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_trand"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
-
-fn ok(out: Output) -> String {
-    let text = format!(
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{text}");
-    text
-}
 
 /// One element of a PLY header: name, count, and its properties as (type, name); a list property
 /// has type `list uchar int`.
@@ -214,9 +198,9 @@ fn exported_points_meshes_and_splats_round_trip_a_hand_made_run() {
     let tmp = ScratchDir::new("cli-export").unwrap();
     let dir = tmp.path();
     let s = hand_made_run(&dir.join("run"));
-    ok(trand(
-        &["export", "--run", "run", "--out", "out", "--splats"],
+    ok(trand_in(
         dir,
+        &["export", "--run", "run", "--out", "out", "--splats"],
     ));
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("out/export.json")).unwrap())
@@ -296,23 +280,8 @@ fn exported_points_meshes_and_splats_round_trip_a_hand_made_run() {
 fn export_of_a_tiny_reconstruction_matches_its_summary() {
     let tmp = ScratchDir::new("cli-export-run").unwrap();
     let dir = tmp.path();
-    ok(trand(
-        &["synth", "--preset", "tiny", "--seed", "3", "--out", "seq"],
-        dir,
-    ));
-    ok(trand(
-        &[
-            "reconstruct",
-            "--data",
-            "seq",
-            "--out",
-            "run0",
-            "--iterations",
-            "30",
-        ],
-        dir,
-    ));
-    ok(trand(&["export", "--run", "run0", "--out", "out"], dir));
+    tiny_run(dir, 30);
+    ok(trand_in(dir, &["export", "--run", "run0", "--out", "out"]));
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("out/export.json")).unwrap())
             .unwrap();
@@ -374,7 +343,7 @@ fn export_errors_name_the_file_and_leave_nothing_behind() {
     ] {
         let mut full = vec!["export"];
         full.extend(args.iter().copied());
-        let out = trand(&full, dir);
+        let out = trand_in(dir, &full);
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{what}: accepted");
         assert!(err.contains(named), "{what}: {err}");

@@ -8,29 +8,12 @@ use std::os::unix::ffi::OsStrExt;
 use std::path::Path;
 use std::process::Output;
 
-use common::text;
+use common::{fails_with, text, trand_in};
 use trand_io::ScratchDir;
 
-fn trand_in<S: AsRef<OsStr>>(cwd: &Path, args: &[S]) -> Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_trand"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .unwrap()
-}
-
+/// Runs `trand` in the temporary folder.
 fn trand<S: AsRef<OsStr>>(args: &[S]) -> Output {
     trand_in(&std::env::temp_dir(), args)
-}
-
-/// Fails (non-zero, not a panic) with every one of `needles` in its output.
-fn fails_with(o: &Output, needles: &[&str]) {
-    let t = text(o);
-    assert!(!o.status.success(), "succeeded: {t}");
-    assert!(!t.contains("panicked"), "panicked: {t}");
-    for n in needles {
-        assert!(t.contains(n), "`{n}` not in: {t}");
-    }
 }
 
 #[test]

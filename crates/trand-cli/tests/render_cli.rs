@@ -2,30 +2,14 @@
 //! their own test cameras give the depth the runs wrote, bit for bit; a bad camera file is refused with
 //! its field named and nothing written.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
+use std::path::Path;
+
+use common::{ok, tiny_run, trand_in};
 use trand_io::{
     LoadOptions, NamedCamera, ScratchDir, Split, State, read_npy_f32, read_sequence_with,
 };
-
-fn trand(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_trand"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .unwrap()
-}
-
-fn ok(out: Output) -> String {
-    let text = format!(
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(out.status.success(), "{text}");
-    text
-}
 
 /// Renders `run` at the sequence's test cameras of `state` and compares with the run's own depth.
 fn renders_its_own_test_depth(dir: &Path, run: &str, state: State) {
@@ -42,9 +26,9 @@ fn renders_its_own_test_depth(dir: &Path, run: &str, state: State) {
     let file = format!("{run}_cams.json");
     std::fs::write(dir.join(&file), trand_io::cameras_to_json(&cams)).unwrap();
     let out = format!("{run}_render");
-    ok(trand(
-        &["render", "--run", run, "--cameras", &file, "--out", &out],
+    ok(trand_in(
         dir,
+        &["render", "--run", run, "--cameras", &file, "--out", &out],
     ));
     for v in views {
         let own = read_npy_f32(&dir.join(format!("{run}/depth/{:06}.npy", v.frame))).unwrap();
@@ -82,25 +66,10 @@ fn renders_its_own_test_depth(dir: &Path, run: &str, state: State) {
 fn render_at_test_cameras_equals_the_runs_own_depth_at_t0_and_t1() {
     let tmp = ScratchDir::new("cli-render").unwrap();
     let dir = tmp.path();
-    ok(trand(
-        &["synth", "--preset", "tiny", "--seed", "3", "--out", "seq"],
+    tiny_run(dir, 30);
+    ok(trand_in(
         dir,
-    ));
-    ok(trand(
-        &[
-            "reconstruct",
-            "--data",
-            "seq",
-            "--out",
-            "run0",
-            "--iterations",
-            "30",
-        ],
-        dir,
-    ));
-    ok(trand(
         &["update", "--run", "run0", "--data", "seq", "--out", "run1"],
-        dir,
     ));
     renders_its_own_test_depth(dir, "run0", State::T0);
     renders_its_own_test_depth(dir, "run1", State::T1);
@@ -135,7 +104,8 @@ fn render_at_test_cameras_equals_the_runs_own_depth_at_t0_and_t1() {
         ("NaN", nan, "[0].K[2][2]"),
     ] {
         std::fs::write(dir.join("bad.json"), &text).unwrap();
-        let out = trand(
+        let out = trand_in(
+            dir,
             &[
                 "render",
                 "--run",
@@ -145,7 +115,6 @@ fn render_at_test_cameras_equals_the_runs_own_depth_at_t0_and_t1() {
                 "--out",
                 "bad_out",
             ],
-            dir,
         );
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{what}: accepted");

@@ -7,14 +7,17 @@
 //!   finite-difference tests, from one source.
 //! * [`math`]: activations and quaternion helpers.
 //! * [`matching`]: mask IoU and the Hungarian assignment.
+//! * [`mesh`]: the indexed triangle mesh every crate shares (models, the fused surface, PLY).
 
 pub mod camera;
 pub mod matching;
 pub mod math;
+pub mod mesh;
 pub mod real;
 pub mod sh;
 pub mod surfels;
 
 pub use camera::{Camera, CameraError, Intrinsics};
+pub use mesh::{Mesh, MeshError};
 pub use real::Real;
 pub use surfels::{DEFAULT_NUM_OBJECTS, MAX_NUM_OBJECTS, Surfels, SurfelsError};

@@ -46,7 +46,7 @@ pub use image::{
     DepthMap, Image, InstanceMap, Rgb8Image, read_depth_png, read_gray8, read_gray16,
     read_instance_mask, read_rgb8,
 };
-pub use mesh::{Mesh, write_mesh_ply};
+pub use mesh::write_mesh_ply;
 pub use npy::{read_npy_f32, write_npy_f32};
 pub use ply::{read_surfels_ply, write_surfels_ply};
 pub use points::{PointCloud, write_point_cloud_ply};

@@ -1,51 +1,14 @@
 //! Triangle meshes as binary little-endian PLY: vertices (`float x y z`), optional per-vertex colour
 //! (`uchar red green blue`) and label (an object id: `uchar label` when every label fits a byte,
 //! else `ushort label`), and faces (`list uchar int vertex_indices`). Readable by MeshLab, Open3D and
-//! Blender.
+//! Blender. The mesh is [`trand_core::Mesh`]; its normals, when it has any, are not written.
 
 use std::path::Path;
 
+use trand_core::Mesh;
+
 use crate::error::IoError;
 use crate::write::write_atomic;
-
-/// A triangle mesh with optional per-vertex colours and labels.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Mesh {
-    pub vertices: Vec<[f32; 3]>,
-    pub colors: Option<Vec<[u8; 3]>>,
-    /// Object id per vertex.
-    pub labels: Option<Vec<u16>>,
-    pub faces: Vec<[u32; 3]>,
-}
-
-impl Mesh {
-    /// Checks attribute lengths and face indices.
-    pub fn validate(&self) -> Result<(), String> {
-        let n = self.vertices.len();
-        if let Some(c) = &self.colors
-            && c.len() != n
-        {
-            return Err(format!("{} colours for {n} vertices", c.len()));
-        }
-        if let Some(l) = &self.labels
-            && l.len() != n
-        {
-            return Err(format!("{} labels for {n} vertices", l.len()));
-        }
-        if let Some((i, f)) = self
-            .faces
-            .iter()
-            .enumerate()
-            .find(|(_, f)| f.iter().any(|&v| v as usize >= n))
-        {
-            return Err(format!("face {i} {f:?} indexes past {n} vertices"));
-        }
-        if n > i32::MAX as usize {
-            return Err("too many vertices for int indices".into());
-        }
-        Ok(())
-    }
-}
 
 /// Serialises a mesh to PLY bytes.
 pub fn mesh_to_ply_bytes(m: &Mesh) -> Vec<u8> {
@@ -96,11 +59,16 @@ pub fn mesh_to_ply_bytes(m: &Mesh) -> Vec<u8> {
     out
 }
 
-/// Writes a mesh PLY atomically.
+/// Writes a mesh PLY atomically, after checking it ([`Mesh::validate`]) and that its vertex indices
+/// fit the file's `int`.
 pub fn write_mesh_ply(path: &Path, m: &Mesh) -> Result<(), IoError> {
-    m.validate().map_err(|reason| IoError::Ply {
+    let bad = |reason: String| IoError::Ply {
         path: path.into(),
         reason,
-    })?;
+    };
+    m.validate().map_err(|e| bad(e.to_string()))?;
+    if m.vertices.len() > i32::MAX as usize {
+        return Err(bad("too many vertices for int indices".into()));
+    }
     write_atomic(path, &mesh_to_ply_bytes(m))
 }

@@ -1,10 +1,11 @@
 //! Surfel PLY round trips, mesh PLY layout, atomic writers and `.npy`/PNG round trips.
 
 use proptest::prelude::*;
+use trand_core::Mesh;
 use trand_core::Surfels;
 use trand_core::surfels::Surfel;
 use trand_io::ply::{surfel_property_names, surfels_from_ply_bytes, surfels_to_ply_bytes};
-use trand_io::{Image, IoError, Mesh, RunDir, ScratchDir};
+use trand_io::{Image, IoError, RunDir, ScratchDir};
 
 fn surfels_from(vals: &[f32], degree: u32, k: usize, n: usize) -> Surfels {
     let mut s = Surfels::new(degree, k).unwrap();
@@ -178,9 +179,8 @@ fn surfel_ply_file_round_trip_and_no_temp_file_left() {
 fn mesh_labels_above_255_are_written_as_ushort_not_truncated() {
     let m = Mesh {
         vertices: vec![[0.0; 3]; 2],
-        colors: None,
         labels: Some(vec![3, 300]),
-        faces: Vec::new(),
+        ..Mesh::default()
     };
     let b = trand_io::mesh::mesh_to_ply_bytes(&m);
     let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
@@ -200,6 +200,7 @@ fn mesh_ply_has_header_counts_and_exact_body_length() {
         colors: Some(vec![[255, 0, 0]; 3]),
         labels: Some(vec![1, 1, 2]),
         faces: vec![[0, 1, 2]],
+        ..Mesh::default()
     };
     let b = trand_io::mesh::mesh_to_ply_bytes(&m);
     let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;

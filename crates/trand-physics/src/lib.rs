@@ -5,7 +5,7 @@
 //! * [`mpm`]: the MLS-MPM solver (fixed-corotated elasticity, sticky ground), parallel and
 //!   deterministic.
 //! * [`tsdf`]: TSDF fusion of depth maps and surface extraction.
-//! * [`mesh`]: the triangle mesh type, connected-component cleanup and vertex labelling.
+//! * [`mesh`]: connected-component cleanup and vertex labelling of the fused [`trand_core::Mesh`].
 //! * [`particles`]: MPM particles from surfel centres, mesh vertices and an optional interior fill.
 //! * [`virtual_views`]: the ring of virtual cameras (plus one from below) used for depth fusion.
 //!
@@ -17,7 +17,7 @@ pub mod particles;
 pub mod tsdf;
 pub mod virtual_views;
 
-pub use mesh::{Mesh, MeshError};
+pub use mesh::{LabelError, label_by_nearest, remove_small_components};
 pub use mpm::{Ground, MpmConfig, MpmError, MpmSolver, ParticleVolume, StopAtRest};
 pub use particles::{
     InteriorFill, ObjectSurfels, ParticleError, ParticleSet, ParticleSource, build_particles,

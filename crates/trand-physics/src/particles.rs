@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use crate::mesh::Mesh;
+use trand_core::Mesh;
 
 /// How to fill the objects' insides.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -99,7 +99,7 @@ pub enum ParticleError {
     },
     #[error("object {id}: surfel {surfel} has a non-finite centre")]
     NonFiniteSurfel { id: u16, surfel: u32 },
-    #[error("the mesh has vertices but no labels (call Mesh::label_by_nearest first)")]
+    #[error("the mesh has vertices but no labels (call label_by_nearest first)")]
     UnlabelledMesh,
     #[error("interior fill spacing {0} must be finite and positive")]
     BadSpacing(f32),
@@ -285,6 +285,7 @@ mod tests {
             normals: vec![[0.0; 3]; 8],
             faces,
             labels: Some(vec![label; 8]),
+            ..Mesh::default()
         }
     }
 

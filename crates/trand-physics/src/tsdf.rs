@@ -26,9 +26,9 @@ use fast_surface_nets::ndshape::{RuntimeShape, Shape};
 use fast_surface_nets::{SurfaceNetsBuffer, surface_nets};
 use glam::DVec3;
 use rayon::prelude::*;
-use trand_core::Camera;
+use trand_core::{Camera, Mesh};
 
-use crate::mesh::Mesh;
+use crate::mesh::remove_small_components;
 
 /// Refuse volumes with more voxels than this (2²⁸ voxels = 2 GiB of `tsdf` + `weight`).
 pub const MAX_VOXELS: usize = 1 << 28;
@@ -50,8 +50,8 @@ pub enum TsdfError {
 
 /// Fusion parameters. [`TsdfSettings::tran_d`] gives the authors' choice (Open3D
 /// `ScalableTSDFVolume` in `GaussianExtractor.extract_mesh_bounded`): depth range `2·radius`,
-/// voxel `range / 256`, truncation `5·voxel`, with `radius` the smallest camera distance to the
-/// focus point ([`crate::virtual_views::scene_radius`]).
+/// voxel `range / 256`, truncation `5·voxel`, with `radius` the scene radius of the cameras
+/// ([`crate::virtual_views::scene_radius`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TsdfSettings {
     pub voxel: f32,
@@ -210,10 +210,10 @@ impl TsdfVolume {
     }
 
     /// The zero level set as an indexed mesh in world coordinates (outward normals), after the
-    /// connected-component cleanup of [`Mesh::remove_small_components`].
+    /// connected-component cleanup of [`remove_small_components`].
     pub fn extract_mesh(&self) -> Mesh {
         let mut mesh = self.extract_raw_mesh();
-        mesh.remove_small_components();
+        remove_small_components(&mut mesh);
         mesh
     }
 
@@ -264,7 +264,7 @@ impl TsdfVolume {
                 .map(|t| [t[0], t[1], t[2]])
                 .filter(|t| t.iter().all(|&v| keep[v as usize]))
                 .collect(),
-            labels: None,
+            ..Mesh::default()
         };
         mesh.remove_unreferenced_vertices();
         mesh

@@ -48,14 +48,22 @@ pub fn below_view(center: DVec3, radius: f64, intrinsics: Intrinsics) -> Camera 
     Camera::from_glam(intrinsics, r_w2c, -(r_w2c * eye))
 }
 
-/// Smallest distance of a camera centre to [`focus_point`]: TRAN-D's scene radius, from which
-/// the fusion depth range (2·radius) and voxel size (2·radius / 256) follow.
+/// The scene radius of a camera set: the mean distance of the camera centres to [`focus_point`]
+/// (`None` when there is no focus point). The fusion depth range (2·radius) and voxel size
+/// (2·radius / 256) follow from it ([`crate::TsdfSettings::tran_d`]); the update takes it from
+/// the t = 0 training cameras (`trand_pipeline::update::SceneScale`).
+///
+/// TRAN-D takes the smallest distance instead, over the cameras it fuses (its test views). For a
+/// rig at one distance, a ring, the two agree; trand fuses virtual views placed around the surfels
+/// rather than data cameras, and the mean of the training cameras' distances depends on every one
+/// of them rather than on the nearest alone.
 pub fn scene_radius(cameras: &[Camera]) -> Option<f64> {
     let f = focus_point(cameras)?;
-    cameras
+    let total = cameras
         .iter()
         .map(|c| (c.center() - f).length())
-        .min_by(f64::total_cmp)
+        .sum::<f64>();
+    Some(total / cameras.len() as f64)
 }
 
 #[cfg(test)]
@@ -68,11 +76,23 @@ mod tests {
         let cams = ring_views(c, 0.7, &[0.4, 0.8], 6, Intrinsics::centered(300.0, 64, 64));
         assert!((focus_point(&cams).unwrap() - c).length() < 1e-9);
         assert!((scene_radius(&cams).unwrap() - 0.7).abs() < 1e-9);
+        assert_eq!(scene_radius(&[]), None);
         // One camera: its axis meets the table, the focus point's fallback.
         let one = focus_point(&cams[..1]).unwrap();
         assert!(
             one.z.abs() < 1e-9 && (one - cams[0].center()).cross(cams[0].forward()).length() < 1e-9
         );
+    }
+
+    #[test]
+    fn scene_radius_is_the_mean_camera_distance_not_the_nearest() {
+        let c = DVec3::new(0.1, 0.0, 0.02);
+        let k = Intrinsics::centered(300.0, 64, 64);
+        // Two rings of 2 × 6 + 1 views each, at 0.5 m and 0.9 m: the mean distance is 0.7 m.
+        let mut cams = ring_views(c, 0.5, &[0.3, 0.9], 6, k);
+        cams.extend(ring_views(c, 0.9, &[0.3, 0.9], 6, k));
+        assert!((focus_point(&cams).unwrap() - c).length() < 1e-9);
+        assert!((scene_radius(&cams).unwrap() - 0.7).abs() < 1e-9);
     }
 
     #[test]

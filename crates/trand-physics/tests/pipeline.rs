@@ -5,7 +5,7 @@ use glam::{DVec3, Vec3};
 use trand_core::Intrinsics;
 use trand_physics::{
     InteriorFill, MpmConfig, MpmSolver, ObjectSurfels, ParticleSource, TsdfVolume, build_particles,
-    ring_views,
+    label_by_nearest, ring_views,
 };
 
 #[test]
@@ -44,8 +44,7 @@ fn ball_from_depth_maps_becomes_filled_particles_that_rest_on_the_floor() {
         })
         .collect();
     let indices: Vec<u32> = (1000..1200).collect();
-    mesh.label_by_nearest(&surfels, &vec![4; surfels.len()])
-        .unwrap();
+    label_by_nearest(&mut mesh, &surfels, &vec![4; surfels.len()]).unwrap();
     let spacing = 1.0 / 96.0;
     let objects = [ObjectSurfels {
         id: 4,

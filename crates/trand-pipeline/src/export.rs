@@ -14,15 +14,15 @@
 //!   voxel outside the surfels' bounding box are dropped: they are the truncation band's extension of
 //!   walls under the objects, where no virtual view sees a surface.
 
-use trand_core::Surfels;
 use trand_core::math::{quat_to_rotmat, sigmoid};
 use trand_core::sh::dc_to_rgb;
+use trand_core::{Mesh, Surfels};
 use trand_io::PointCloud;
 use trand_physics::TsdfSettings;
 use trand_render::RenderSettings;
 
 use crate::Result;
-use crate::simulate::{channel_members, fuse_mesh, io_mesh, virtual_view_ring};
+use crate::simulate::{channel_members, coloured_by_object, fuse_mesh, virtual_view_ring};
 use crate::update::UpdateOptions;
 
 /// Surfels below this opacity are not exported as points: at 5 % a surfel barely changes any pixel it
@@ -33,7 +33,7 @@ pub const DEFAULT_MIN_OPACITY: f64 = 0.05;
 pub struct ObjectExport {
     pub id: u16,
     pub points: PointCloud,
-    pub mesh: trand_io::Mesh,
+    pub mesh: Mesh,
 }
 
 /// Everything `trand export` writes besides the splats.
@@ -42,7 +42,7 @@ pub struct Export {
     /// Every object's points, with their object ids.
     pub scene_points: PointCloud,
     /// The whole fused mesh, vertices labelled by object id.
-    pub scene_mesh: trand_io::Mesh,
+    pub scene_mesh: Mesh,
 }
 
 /// The view-independent colour of a surfel as 8 bits per channel.
@@ -76,7 +76,7 @@ pub fn object_points(s: &Surfels, c: usize, min_opacity: f64) -> PointCloud {
 /// centres: the fusion's truncation band extends walls a few voxels past the last surface it saw
 /// (below an object standing on the table, where no view looks), and that extension is not part of
 /// the scene.
-fn crop_to_surfels(mesh: &mut trand_physics::Mesh, s: &Surfels, pad: f32) {
+fn crop_to_surfels(mesh: &mut Mesh, s: &Surfels, pad: f32) {
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
     for m in &s.means {
         for a in 0..3 {
@@ -92,13 +92,14 @@ fn crop_to_surfels(mesh: &mut trand_physics::Mesh, s: &Surfels, pad: f32) {
 }
 
 /// The faces of `mesh` whose three vertices are labelled `id`, with the unused vertices dropped.
-fn object_mesh(mesh: &trand_physics::Mesh, id: u16) -> trand_physics::Mesh {
-    let Some(labels) = &mesh.labels else {
-        return trand_physics::Mesh::default();
+fn object_mesh(mesh: &Mesh, id: u16) -> Mesh {
+    if mesh.labels.is_none() {
+        return Mesh::default();
+    }
+    let mut m = Mesh {
+        faces: mesh.faces_with_label(id),
+        ..mesh.clone()
     };
-    let mut m = mesh.clone();
-    m.faces
-        .retain(|f| f.iter().all(|&v| labels[v as usize] == id));
     m.remove_unreferenced_vertices();
     m
 }
@@ -119,7 +120,7 @@ pub fn export(
         .map(|&(id, c)| ObjectExport {
             id,
             points: object_points(surfels, c, min_opacity),
-            mesh: trand_io::Mesh::default(),
+            mesh: Mesh::default(),
         })
         .collect();
     let mut scene_points = PointCloud {
@@ -136,7 +137,7 @@ pub fn export(
             ids.extend(std::iter::repeat_n(o.id, o.points.len()));
         }
     }
-    let mut mesh = trand_physics::Mesh::default();
+    let mut mesh = Mesh::default();
     if !surfels.is_empty() {
         let radius = virtual_view_ring(surfels).1 as f32;
         let ids = scene_points.object_ids.as_deref().unwrap_or_default();
@@ -151,14 +152,14 @@ pub fn export(
         crop_to_surfels(&mut mesh, surfels, TsdfSettings::tran_d(radius).voxel);
     }
     for o in &mut objects {
-        o.mesh = io_mesh(&object_mesh(&mesh, o.id));
+        o.mesh = coloured_by_object(object_mesh(&mesh, o.id));
     }
     // An object without surfels (one removed at t = 1) has nothing to export.
     objects.retain(|o| !o.points.is_empty() || !o.mesh.faces.is_empty());
     Ok(Export {
         objects,
         scene_points,
-        scene_mesh: io_mesh(&mesh),
+        scene_mesh: coloured_by_object(mesh),
     })
 }
 

@@ -532,24 +532,76 @@ fn support_top(
     hull.iter()
         .filter(|(o, _)| **o != id)
         .filter_map(|(_, vs)| {
-            let under: Vec<DVec3> = vs
-                .iter()
-                .filter(|p| (p.truncate() - axis).length() < rim_radius)
-                .copied()
-                .collect();
-            if under.len() <= MIN_VOXELS / 4 {
-                return None;
-            }
-            let centre =
-                under.iter().fold(DVec2::ZERO, |a, p| a + p.truncate()) / under.len() as f64;
+            let (under, placement) = in_rim_circle(vs, axis, rim_radius, |_| true)?;
             let lowest = under.iter().fold(f64::INFINITY, |a, p| a.min(p.z));
             let top = under.iter().fold(f64::NEG_INFINITY, |a, p| a.max(p.z)) + 0.5 * VOXEL_M;
-            ((centre - axis).length() < MAX_LEANER_OFFSET * rim_radius
+            (placement == Placement::Centred
                 && lowest <= profile.z0 + VOXEL_M
                 && top + FLOOR_M < rim_z)
                 .then_some(top)
         })
         .reduce(f64::max)
+}
+
+/// Where another object's voxels inside a rim's circle lie, seen from above.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Placement {
+    /// Their mean is within [`MAX_LEANER_OFFSET`] rim radii of the vessel's axis.
+    Centred,
+    OffCentre,
+}
+
+/// The voxels of `vs` that `keep` accepts inside the rim's circle (horizontal distance to `axis`
+/// below `rim_radius`), and where they lie, when there are more than a few (a stray voxel or two
+/// come from label noise at occlusions).
+fn in_rim_circle(
+    vs: &[DVec3],
+    axis: DVec2,
+    rim_radius: f64,
+    keep: impl Fn(&DVec3) -> bool,
+) -> Option<(Vec<DVec3>, Placement)> {
+    let inside: Vec<DVec3> = vs
+        .iter()
+        .filter(|p| keep(p) && (p.truncate() - axis).length() < rim_radius)
+        .copied()
+        .collect();
+    if inside.len() <= MIN_VOXELS / 4 {
+        return None;
+    }
+    let centre = inside.iter().fold(DVec2::ZERO, |a, p| a + p.truncate()) / inside.len() as f64;
+    let placement = if (centre - axis).length() < MAX_LEANER_OFFSET * rim_radius {
+        Placement::Centred
+    } else {
+        Placement::OffCentre
+    };
+    Some((inside, placement))
+}
+
+/// The voxels of the objects that lean on the rim (`rim_z`, `rim_radius`) of object `id` from
+/// outside: those with more than a few voxels above the rim inside its circle, off-centre; their
+/// voxels near the rim are kept out of the carving. An object centred over the opening stands on
+/// the vessel, or the "vessel" is an upturned one carrying it: [`Closed::Supports`].
+fn leaning_voxels(
+    hull: &BTreeMap<u16, Vec<DVec3>>,
+    id: u16,
+    axis: DVec2,
+    rim_z: f64,
+    rim_radius: f64,
+) -> Result<Vec<DVec3>, Closed> {
+    let mut leaning = Vec::new();
+    for (_, vs) in hull.iter().filter(|(o, _)| **o != id) {
+        let Some((_, placement)) = in_rim_circle(vs, axis, rim_radius, |p| p.z > rim_z) else {
+            continue;
+        };
+        if placement == Placement::Centred {
+            return Err(Closed::Supports);
+        }
+        leaning.extend(vs.iter().filter(|p| {
+            (p.truncate() - axis).length() < rim_radius + 2.0 * WALL_MARGIN_M
+                && p.z < rim_z + 4.0 * rim_radius
+        }));
+    }
+    Ok(leaning)
 }
 
 /// The lowest slice of `r` (a straight vessel's profile up to its rim slice `rim`) within
@@ -607,29 +659,9 @@ fn open_top(
     if above > ROOF_SLACK * rim_radius * elevation.tan() + 2.0 * VOXEL_M {
         return Err(Closed::NarrowTop);
     }
-    // Voxels of another object above the rim, inside the rim's circle: more than a few means it rests
-    // there (a stray voxel or two come from label noise at occlusions). Centred over the opening,
-    // it stands on the vessel, or the "vessel" is an upturned one carrying it, and the top is left
-    // closed; off-centre, it leans on the rim from outside and the opening is carved around it.
-    let mut leaning = Vec::new();
-    for (_, vs) in hull.iter().filter(|(o, _)| **o != id) {
-        let above: Vec<DVec2> = vs
-            .iter()
-            .filter(|p| p.z > rim_z && (p.truncate() - axis).length() < rim_radius)
-            .map(|p| p.truncate())
-            .collect();
-        if above.len() <= MIN_VOXELS / 4 {
-            continue;
-        }
-        let centre = above.iter().fold(DVec2::ZERO, |a, p| a + *p) / above.len() as f64;
-        if (centre - axis).length() < MAX_LEANER_OFFSET * rim_radius {
-            return Err(Closed::Supports);
-        }
-        leaning.extend(vs.iter().filter(|p| {
-            (p.truncate() - axis).length() < rim_radius + 2.0 * WALL_MARGIN_M
-                && p.z < rim_z + 4.0 * rim_radius
-        }));
-    }
+    // Another object resting above the rim: centred, the top is closed; leaning on the rim from
+    // outside, the opening is carved around it.
+    let leaning = leaning_voxels(hull, id, axis, rim_z, rim_radius)?;
     // A straight vessel's base is where its wall starts: below, a hidden foot's hull may be its
     // support's top, which is not carved.
     let base = match shape {

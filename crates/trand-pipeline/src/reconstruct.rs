@@ -23,7 +23,7 @@ use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::openings::{Opening, VesselTop};
 use crate::support::{Support, SupportPrior};
-use crate::targets::{self, Supervision, TrainView};
+use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
 
@@ -213,6 +213,8 @@ pub type Channels = Vec<(u16, usize)>;
 #[derive(Clone, Debug)]
 pub struct TrainViews {
     pub views: Vec<TrainView>,
+    /// The views at the coarse levels of `opts.train.resolution`.
+    pub coarse: Vec<CoarseViews>,
     pub channels: Channels,
     /// How the masks' ids were taken.
     pub identity: IdentityReport,
@@ -256,21 +258,42 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         report.association = Some(assoc);
     }
     let channels = targets::channel_map(&object_ids, opts.num_objects)?;
-    let views = chosen
+    let build_at = |factor: u32| {
+        chosen
+            .iter()
+            .map(|v| {
+                targets::build(
+                    v,
+                    &channels,
+                    opts.num_objects,
+                    opts.train.background,
+                    sup,
+                    factor,
+                )
+            })
+            .collect::<Result<Vec<_>>>()
+    };
+    let views = build_at(opts.downsample)?;
+    let native = chosen
         .iter()
-        .map(|v| {
-            targets::build(
-                v,
-                &channels,
-                opts.num_objects,
-                opts.train.background,
-                sup,
-                opts.downsample,
-            )
+        .filter_map(|v| v.rgb.as_ref().map(|i| (i.width, i.height)))
+        .fold((u32::MAX, u32::MAX), |a, b| (a.0.min(b.0), a.1.min(b.1)));
+    let coarse = opts
+        .train
+        .resolution
+        .coarse_factors(opts.downsample)
+        .into_iter()
+        .filter_map(|level| {
+            let f = targets::coarse_factor(level, opts.downsample, native.0, native.1)?;
+            Some(build_at(f).map(|views| CoarseViews {
+                factor: level,
+                views,
+            }))
         })
         .collect::<Result<Vec<_>>>()?;
     Ok(TrainViews {
         views,
+        coarse,
         channels,
         identity: report,
     })
@@ -587,6 +610,7 @@ pub fn reconstruct_from(
     let t0 = Instant::now();
     let TrainViews {
         views,
+        coarse,
         channels,
         identity,
     } = train_views(seq, opts)?;
@@ -624,7 +648,8 @@ pub fn reconstruct_from(
 
     let t1 = Instant::now();
     let mut initial = surfels.len();
-    let mut trainer = Trainer::new(surfels, cfg, &views, extent, opts.method.supervision());
+    let mut trainer =
+        Trainer::new(surfels, cfg, &views, extent, opts.method.supervision()).with_coarse(&coarse);
     let mut curve = Vec::new();
     match resume {
         Some((adam, stats, rng, stack, c, init)) => {
@@ -656,6 +681,9 @@ pub fn reconstruct_from(
         on_step(&rep, &snap);
         if cancel.load(Ordering::SeqCst) && it < last {
             return Err(PipelineError::Interrupted(it));
+        }
+        if trainer.cfg.early_stop.stops(&curve) {
+            break;
         }
     }
     let optimise_s = t1.elapsed().as_secs_f64();

@@ -6,9 +6,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::{DVec3, Quat};
-use trand_core::{Camera, Intrinsics, Surfels};
+use trand_core::{Camera, Intrinsics, Mesh, Surfels};
 use trand_physics::{
-    MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume, below_view, build_particles, ring_views,
+    MpmSolver, ObjectSurfels, TsdfSettings, TsdfVolume, below_view, build_particles,
+    label_by_nearest, ring_views,
 };
 use trand_render::{RenderSettings, render};
 
@@ -65,7 +66,7 @@ pub fn fuse_mesh(
     opts: &UpdateOptions,
     settings: &RenderSettings,
     progress: &mut dyn FnMut(&str, u32, u32),
-) -> Result<trand_physics::Mesh> {
+) -> Result<Mesh> {
     let cams = virtual_cameras(surfels, opts);
     let ts = TsdfSettings::tran_d(radius);
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
@@ -103,31 +104,28 @@ pub fn fuse_mesh(
     let mut mesh = tsdf.extract_mesh();
     let (pts, labels) = labelled;
     if !mesh.vertices.is_empty() && !pts.is_empty() {
-        mesh.label_by_nearest(pts, labels)
+        label_by_nearest(&mut mesh, pts, labels)
             .map_err(|e| PipelineError::Invalid(format!("mesh labels: {e}")))?;
     }
     Ok(mesh)
 }
 
-/// The mesh as written to PLY: vertex colours from the palette of each vertex's object id.
-pub fn io_mesh(mesh: &trand_physics::Mesh) -> trand_io::Mesh {
-    trand_io::Mesh {
-        vertices: mesh.vertices.clone(),
-        colors: mesh.labels.as_ref().map(|l| {
-            l.iter()
-                .map(|&id| targets::palette(id as usize).map(|c| (c * 255.0) as u8))
-                .collect()
-        }),
-        labels: mesh.labels.clone(),
-        faces: mesh.faces.clone(),
-    }
+/// The mesh as written to PLY: vertex colours from the palette of each vertex's object id (none
+/// when the mesh is unlabelled).
+pub fn coloured_by_object(mut mesh: Mesh) -> Mesh {
+    mesh.colors = mesh.labels.as_ref().map(|l| {
+        l.iter()
+            .map(|&id| targets::palette(usize::from(id)).map(|c| (c * 255.0) as u8))
+            .collect()
+    });
+    mesh
 }
 
 /// What [`simulate`] made besides the moved surfels.
 #[derive(Clone, Debug)]
 pub struct Simulation {
-    /// The TSDF mesh, vertices labelled by object.
-    pub mesh: trand_io::Mesh,
+    /// The TSDF mesh, vertices labelled and coloured by object ([`coloured_by_object`]).
+    pub mesh: Mesh,
     pub num_particles: usize,
     /// Frames simulated: `opts.mpm.frames`, or fewer when every particle came to rest before
     /// ([`trand_physics::StopAtRest`]); 0 without particles or without a movable object.
@@ -192,12 +190,13 @@ pub fn simulate(
             surfel_indices: idx,
         })
         .collect();
+    let unlabelled = Mesh::default();
     let mesh_for_particles = if mesh.labels.is_some() {
-        mesh.clone()
+        &mesh
     } else {
-        trand_physics::Mesh::default()
+        &unlabelled
     };
-    let set = build_particles(&objs, &mesh_for_particles, opts.fill)
+    let set = build_particles(&objs, mesh_for_particles, opts.fill)
         .map_err(|e| PipelineError::Invalid(format!("particles: {e}")))?;
     let mut max_disp = 0.0f32;
     let mut frames = 0;
@@ -246,7 +245,7 @@ pub fn simulate(
     }
     let simulation_s = t1.elapsed().as_secs_f64();
     Ok(Simulation {
-        mesh: io_mesh(&mesh),
+        mesh: coloured_by_object(mesh),
         num_particles: set.positions.len(),
         frames,
         max_displacement_m: max_disp,

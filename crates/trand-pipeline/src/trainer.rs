@@ -24,7 +24,7 @@ use trand_train::losses::{
 use trand_train::{Adam, DensifyStats, densify_and_prune, reset_opacity};
 
 use crate::Result;
-use crate::targets::{Supervision, TrainView};
+use crate::targets::{CoarseViews, Supervision, TrainView};
 
 /// What one iteration did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
@@ -47,6 +47,8 @@ pub struct Trainer<'a> {
     pub stats: DensifyStats,
     pub cfg: TrainConfig,
     pub views: &'a [TrainView],
+    /// The same views at the levels of `cfg.resolution` coarser than the training resolution.
+    coarse: &'a [CoarseViews],
     /// Scene extent (1.1 × the largest camera distance from the cameras' mean), for densification.
     pub extent: f32,
     /// Extent that scales the position learning rate.
@@ -86,9 +88,26 @@ impl<'a> Trainer<'a> {
             extent,
             cfg,
             views,
+            coarse: &[],
             supervision,
             rng,
             stack: Vec::new(),
+        }
+    }
+
+    /// Gives the downsampled views the coarse levels of `cfg.resolution` train on. An iteration whose
+    /// level has no views here (it is not coarser than the training resolution) trains on `views`.
+    pub fn with_coarse(mut self, coarse: &'a [CoarseViews]) -> Self {
+        self.coarse = coarse;
+        self
+    }
+
+    /// View `vi` at the resolution iteration `it` trains on.
+    fn view_at(&self, it: u32, vi: usize) -> &'a TrainView {
+        let f = self.cfg.resolution.factor_at(it);
+        match self.coarse.iter().find(|c| c.factor == f) {
+            Some(c) => &c.views[vi],
+            None => &self.views[vi],
         }
     }
 
@@ -118,8 +137,8 @@ impl<'a> Trainer<'a> {
     /// Runs iteration `it`; `last` marks the final iteration (no optimiser step, no densification).
     pub fn step(&mut self, it: u32, last: bool) -> Result<StepReport> {
         let vi = self.next_view();
+        let view = self.view_at(it, vi);
         let cfg = &self.cfg;
-        let view = &self.views[vi];
         let k = self.surfels.num_objects;
         let object_aware = self.supervision == Supervision::ObjectAware;
         let geo = &cfg.geometry_loss;

@@ -22,7 +22,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use trand_core::Surfels;
+use trand_core::{Mesh, Surfels};
 use trand_io::View;
 use trand_render::{GeometryMaps, Maps, RenderSettings};
 
@@ -47,7 +47,7 @@ pub struct Update {
     pub relocations: Vec<Relocation>,
     /// Objects in contact (transitively) with a removed one: the only ones the simulation may move.
     pub movable: Vec<u16>,
-    pub mesh: Option<trand_io::Mesh>,
+    pub mesh: Option<Mesh>,
     pub num_particles: usize,
     /// MPM frames simulated (fewer than configured when the scene came to rest; 0 without physics).
     pub simulated_frames: u32,
@@ -271,22 +271,39 @@ pub fn update_with_cancel(
             map = remaining.clone();
         }
         let ds = opts.downsample.unwrap_or(scale.downsample);
-        let tv = targets::build(
-            &view,
-            &map,
-            surfels.num_objects,
-            opts.train.background,
-            supervision,
-            ds,
-        )?;
-        let views = [tv];
+        let build = |factor: u32| {
+            targets::build(
+                &view,
+                &map,
+                surfels.num_objects,
+                opts.train.background,
+                supervision,
+                factor,
+            )
+        };
+        let views = [build(ds)?];
+        let (w, h) = view.rgb.as_ref().map_or((0, 0), |i| (i.width, i.height));
+        let coarse = opts
+            .train
+            .resolution
+            .coarse_factors(ds)
+            .into_iter()
+            .filter_map(|level| {
+                let f = targets::coarse_factor(level, ds, w, h)?;
+                Some(build(f).map(|v| targets::CoarseViews {
+                    factor: level,
+                    views: vec![v],
+                }))
+            })
+            .collect::<Result<Vec<_>>>()?;
         let mut trainer = Trainer::new(
             surfels,
             opts.train.clone(),
             &views,
             scale.extent,
             supervision,
-        );
+        )
+        .with_coarse(&coarse);
         let last = opts.train.start_iteration + opts.train.iterations;
         for it in opts.train.start_iteration + 1..=last {
             let rep = trainer.step(it, it == last)?;
@@ -294,6 +311,9 @@ pub fn update_with_cancel(
             on_step(&rep);
             if it < last {
                 stop(it)?;
+            }
+            if opts.train.early_stop.stops(&curve) {
+                break;
             }
         }
         surfels = trainer.surfels;

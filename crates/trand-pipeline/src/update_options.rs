@@ -82,9 +82,41 @@ pub struct UpdateOptions {
     pub virtual_height: u32,
     pub virtual_focal: f64,
     pub mpm: MpmConfig,
+    /// The refinement: [`TrainConfig::t1`] with the keys a file gives replaced.
+    #[serde(deserialize_with = "t1_with_overrides")]
     pub train: TrainConfig,
     /// Image downsampling for the refinement (`None`: the t = 0 run's).
     pub downsample: Option<u32>,
+}
+
+/// Reads a `[train]` table as overrides of [`TrainConfig::t1`]: the table's keys (nested tables key by
+/// key) replace those of the refinement's defaults. Plain serde defaults would fill the keys a file
+/// leaves out from [`TrainConfig::default`], the t = 0 optimisation of 1000 iterations.
+fn t1_with_overrides<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<TrainConfig, D::Error> {
+    use serde::de::Error;
+    let given = <toml::Table as serde::Deserialize>::deserialize(d)?;
+    let mut base = toml::Table::try_from(TrainConfig::t1()).map_err(D::Error::custom)?;
+    merge(&mut base, given);
+    base.try_into().map_err(D::Error::custom)
+}
+
+/// Replaces `base`'s keys by `over`'s, descending into a table of both whose keys in `over` are all
+/// keys of `base` (a struct given in part); a table with other keys (another enum variant) replaces.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o))
+                if o.keys().all(|key| b.contains_key(key)) =>
+            {
+                merge(b, o)
+            }
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
 }
 
 impl UpdateOptions {
@@ -134,8 +166,9 @@ impl UpdateOptions {
 pub struct SceneScale {
     /// 1.1 × the largest distance of a t = 0 training camera from their mean (densification unit).
     pub extent: f32,
-    /// Mean distance of the t = 0 training cameras from the point they look at: sets the TSDF voxel
-    /// `2·radius/256` as the authors' code does with its camera radius.
+    /// The scene radius ([`trand_physics::scene_radius`]) of the t = 0 training cameras, 0.5 m when
+    /// they have no focus point: sets the TSDF voxel `2·radius/256` as the authors' code does with
+    /// its camera radius.
     pub radius: f32,
     /// The t = 0 run's training downsampling.
     pub downsample: u32,
@@ -145,15 +178,7 @@ impl SceneScale {
     /// The scale of a t = 0 run trained on `cameras`.
     pub fn from_cameras(cameras: &[Camera], downsample: u32) -> Self {
         let extent = crate::trainer::camera_extent(cameras);
-        let radius = trand_core::camera::focus_point(cameras)
-            .map(|f| {
-                cameras
-                    .iter()
-                    .map(|c| (c.center() - f).length())
-                    .sum::<f64>()
-                    / cameras.len().max(1) as f64
-            })
-            .unwrap_or(0.5) as f32;
+        let radius = trand_physics::scene_radius(cameras).unwrap_or(0.5) as f32;
         Self {
             extent,
             radius,
@@ -184,5 +209,41 @@ impl Default for UpdateOptions {
             train: TrainConfig::t1(),
             downsample: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trand_train::config::TrainConfig;
+    use trand_train::optim::LrSchedule;
+
+    fn read(text: &str) -> std::result::Result<UpdateOptions, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    #[test]
+    fn a_partial_train_table_overrides_the_refinement_not_the_t0_optimisation() {
+        let o = read("[train]\niterations = 50\n[train.lr]\nopacity = { log_linear = { from = 0.5, to = 0.05, max_steps = 1100 } }\n").unwrap();
+        let mut want = TrainConfig::t1();
+        want.iterations = 50;
+        want.lr.opacity = LrSchedule::LogLinear {
+            from: 0.5,
+            to: 0.05,
+            max_steps: 1100,
+        };
+        assert_eq!(o.train, want);
+        let o = read("[train]\nresolution = { coarse_to_fine = [{ factor = 2, until = 1070 }] }\n")
+            .unwrap();
+        assert_eq!(o.train.start_iteration, 1000);
+        assert_eq!(o.train.iterations, 100);
+        assert_eq!(o.train.resolution.factor_at(1070), 2);
+        assert_eq!(read("").unwrap().train, TrainConfig::t1());
+    }
+
+    #[test]
+    fn an_unknown_train_key_is_refused() {
+        let e = read("[train]\niteratons = 50\n").unwrap_err();
+        assert!(e.to_string().contains("iteratons"), "{e}");
     }
 }

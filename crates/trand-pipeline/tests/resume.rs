@@ -9,6 +9,7 @@ use trand_io::{Sequence, read_sequence};
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{Reconstruction, Start, reconstruct_from};
 use trand_pipeline::{PipelineError, ReconstructOptions};
+use trand_train::config::{ResolutionLevel, ResolutionSchedule};
 
 fn tiny(seed: u64, dir: &Path) -> Sequence {
     let out = dir.join(format!("seq{seed}"));
@@ -22,12 +23,14 @@ fn tiny(seed: u64, dir: &Path) -> Sequence {
 }
 
 fn options() -> ReconstructOptions {
-    let mut o = ReconstructOptions {
-        downsample: 2,
-        ..Default::default()
-    };
-    // Past densifications (every 20 from 20), the opacity reset (100) and into the object loss (> 100).
+    let mut o = ReconstructOptions::default();
+    // Past densifications (every 20 from 20), the opacity reset (100) and into the object loss (> 100);
+    // from the coarse level (80×60) to the training resolution (160×120) after iteration 60.
     o.train.iterations = 125;
+    o.train.resolution = ResolutionSchedule::CoarseToFine(vec![ResolutionLevel {
+        factor: 2,
+        until: 60,
+    }]);
     o
 }
 

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 
 use trand_eval::{KindRow, Metrics, PerObject, THRESHOLDS_M};
 use trand_io::{
-    DepthMap, Load, LoadOptions, Sequence, Split, State, ViewCount, read_npy_f32,
-    read_sequence_with, run_layout,
+    DepthMap, InstanceMap, Load, LoadOptions, Rgb8Image, Sequence, Split, State, View, ViewCount,
+    read_npy_f32, read_sequence_with, run_layout,
 };
 
 use crate::kinds::{self, KindTable, ObjectTable};
@@ -343,23 +343,51 @@ impl StateView<'_> {
         }
     }
 
-    fn html(&self, manifest: &Manifest) -> Result<String, ReportError> {
-        let st = self.state.as_str();
-        let views = self.seq.views(Split::Test, self.state);
-        let primary = manifest.methods.iter().copied().find(|&m| {
+    /// The first of the bench's methods with a result at this state.
+    fn primary_method(&self, manifest: &Manifest) -> Option<Method> {
+        manifest.methods.iter().copied().find(|&m| {
             layout::result_dir(self.report, &self.entry.name, m, self.state)
                 .join(run_layout::METRICS_JSON)
                 .is_file()
-        });
+        })
+    }
+
+    /// The state's section: images of the primary method's first test views, then the plots.
+    fn html(&self, manifest: &Manifest) -> Result<String, ReportError> {
+        let st = self.state.as_str();
         let mut b = format!("<h2>State {st} ({})</h2>\n", Split::Test.folder(self.state));
-        let Some(method) = primary else {
+        let Some(method) = self.primary_method(manifest) else {
             b += "<p class=\"note\">No finished run at this state.</p>\n";
             return Ok(b);
         };
-        let run = layout::result_dir(self.report, &self.entry.name, method, self.state);
-        let (lo, hi) = self.depth_range();
-        let _ = write!(
-            b,
+        let depth_range = self.depth_range();
+        b += &self.intro(method, depth_range);
+        let (rows, hist) = self.view_rows(method, depth_range)?;
+        b += "<table class=\"views\"><tr><th>view</th><th>GT depth</th><th>rendered depth</th><th>|error|</th><th>rendered − GT</th><th>GT objects</th><th>predicted objects</th></tr>\n";
+        b += &rows;
+        b += "</table>\n<p class=\"note\">Object colours: GT by object id; predicted maps as the run wrote them (colour-coded argmax).</p>\n<div class=\"plots\">\n";
+        b += &svg::histogram(
+            &format!("|error| of {method} at {st}"),
+            &hist.bins,
+            0.0,
+            HIST_MAX_M,
+            hist.overflow,
+            "absolute error (m)",
+        );
+        b += &self.accuracy_chart(manifest)?;
+        if self.state == State::T0 {
+            b += &self.loss_chart(manifest)?;
+        }
+        b += &self.time_bars(manifest)?;
+        b += "</div>\n";
+        Ok(b)
+    }
+
+    /// What the images show, and the colour bars of depth (`lo..hi`), error and signed error.
+    fn intro(&self, method: Method, (lo, hi): (f64, f64)) -> String {
+        let st = self.state.as_str();
+        let views = self.seq.views(Split::Test, self.state);
+        format!(
             "<p>Images of <b>{method}</b>, first {} of {} test views. GT and rendered depth share one colour scale; \
              the errors are shown on the evaluated pixels only (GT objects with GT depth). The signed error is \
              blue where the rendering is nearer than the truth (a lid over an open container, a floater) and red \
@@ -383,11 +411,20 @@ impl StateView<'_> {
                 ),
                 &format!("gs{st}"),
             )
-        );
-        b += "<table class=\"views\"><tr><th>view</th><th>GT depth</th><th>rendered depth</th><th>|error|</th><th>rendered − GT</th><th>GT objects</th><th>predicted objects</th></tr>\n";
-        let mut hist = vec![0u64; HIST_BINS];
-        let mut overflow = 0u64;
-        for (k, v) in views.iter().enumerate() {
+        )
+    }
+
+    /// The table rows of the first [`SHOWN_VIEWS`] test views with GT, and the error histogram of
+    /// every test view.
+    fn view_rows(
+        &self,
+        method: Method,
+        depth_range: (f64, f64),
+    ) -> Result<(String, ErrorHistogram), ReportError> {
+        let run = layout::result_dir(self.report, &self.entry.name, method, self.state);
+        let mut hist = ErrorHistogram::default();
+        let mut rows = String::new();
+        for (k, v) in self.seq.views(Split::Test, self.state).iter().enumerate() {
             let (Some(gt), Some(inst)) = (&v.depth, &v.instance) else {
                 continue;
             };
@@ -397,95 +434,101 @@ impl StateView<'_> {
             } else {
                 None
             };
-            let signed = pred
-                .as_ref()
-                .filter(|p| p.same_size(gt))
-                .map(|p| raster::signed_error(p, gt, inst));
-            let err = signed.as_ref().map(raster::absolute);
-            if let Some(e) = &err {
-                for &x in e.data.iter().filter(|x| !x.is_nan()) {
-                    let bin = (x as f64 / HIST_MAX_M * HIST_BINS as f64) as usize;
-                    match hist.get_mut(bin) {
-                        Some(c) => *c += 1,
-                        None => overflow += 1,
-                    }
-                }
+            let errors = ViewErrors::of(pred.as_ref(), gt, inst);
+            if let Some(e) = &errors.absolute {
+                hist.add(e);
             }
-            if k >= SHOWN_VIEWS {
-                continue;
-            }
-            let f = v.frame;
-            let cell =
-                |file: String, img: Option<trand_io::Rgb8Image>| -> Result<String, ReportError> {
-                    Ok(match img {
-                        Some(img) => {
-                            let (path, rel) = self.asset(&file);
-                            raster::write_png(&path, &raster::downscale(&img, IMAGE_WIDTH))?;
-                            format!(
-                                "<td><img src=\"{}\" alt=\"{}\"></td>",
-                                escape(&rel),
-                                escape(&file)
-                            )
-                        }
-                        None => "<td class=\"note\">–</td>".into(),
-                    })
+            if k < SHOWN_VIEWS {
+                let maps = ViewMaps {
+                    view: v,
+                    gt,
+                    inst,
+                    pred: pred.as_ref(),
+                    errors: &errors,
                 };
-            let mut row = format!(
-                "<tr><td>{}<br><span class=\"note\">MAE {} m<br>mean rendered − GT {} m</span></td>",
-                escape(&v.name),
-                fmt_opt(err.as_ref().map(mean_evaluated), 4),
-                fmt_opt(signed.as_ref().map(mean_evaluated), 4)
-            );
-            row += &cell(
-                format!("{st}_{f:06}_gt_depth.png"),
-                Some(raster::colour_depth(gt, lo, hi)),
-            )?;
-            row += &cell(
-                format!("{st}_{f:06}_depth.png"),
-                pred.as_ref().map(|p| raster::colour_depth(p, lo, hi)),
-            )?;
-            row += &cell(
-                format!("{st}_{f:06}_error.png"),
-                err.as_ref().map(|e| raster::colour_error(e, ERROR_MAX_M)),
-            )?;
-            row += &cell(
-                format!("{st}_{f:06}_signed_error.png"),
-                signed
-                    .as_ref()
-                    .map(|e| raster::colour_signed_error(e, ERROR_MAX_M)),
-            )?;
-            row += &cell(
-                format!("{st}_{f:06}_gt_objects.png"),
-                Some(raster::colour_instances(inst)),
-            )?;
-            let objects = run.join("objects").join(format!("{f:06}.png"));
-            if objects.is_file() {
-                let rel = format!(
-                    "../{}/{}/{}/{st}/objects/{f:06}.png",
-                    layout::RUNS_DIR,
-                    self.entry.name,
-                    method.source(self.state)
-                );
-                let _ = write!(
-                    row,
-                    "<td><img src=\"{}\" alt=\"predicted objects\"></td>",
-                    escape(&rel)
-                );
-            } else {
-                row += "<td class=\"note\">–</td>";
+                rows += &self.view_row(&maps, &run, method, depth_range)?;
             }
-            row += "</tr>\n";
-            b += &row;
         }
-        b += "</table>\n<p class=\"note\">Object colours: GT by object id; predicted maps as the run wrote them (colour-coded argmax).</p>\n<div class=\"plots\">\n";
-        b += &svg::histogram(
-            &format!("|error| of {method} at {st}"),
-            &hist,
-            0.0,
-            HIST_MAX_M,
-            overflow,
-            "absolute error (m)",
+        Ok((rows, hist))
+    }
+
+    /// One image cell: `img` written as the asset `file`, or a dash.
+    fn image_cell(&self, file: String, img: Option<Rgb8Image>) -> Result<String, ReportError> {
+        Ok(match img {
+            Some(img) => {
+                let (path, rel) = self.asset(&file);
+                raster::write_png(&path, &raster::downscale(&img, IMAGE_WIDTH))?;
+                format!(
+                    "<td><img src=\"{}\" alt=\"{}\"></td>",
+                    escape(&rel),
+                    escape(&file)
+                )
+            }
+            None => "<td class=\"note\">–</td>".into(),
+        })
+    }
+
+    /// The row of one shown view: its name and errors, GT and rendered depth on `lo..hi`, both error
+    /// maps, GT objects and the run's predicted objects (linked from the run folder `run`).
+    fn view_row(
+        &self,
+        m: &ViewMaps,
+        run: &Path,
+        method: Method,
+        (lo, hi): (f64, f64),
+    ) -> Result<String, ReportError> {
+        let (st, f) = (self.state.as_str(), m.view.frame);
+        let (signed, err) = (&m.errors.signed, &m.errors.absolute);
+        let mut row = format!(
+            "<tr><td>{}<br><span class=\"note\">MAE {} m<br>mean rendered − GT {} m</span></td>",
+            escape(&m.view.name),
+            fmt_opt(err.as_ref().map(mean_evaluated), 4),
+            fmt_opt(signed.as_ref().map(mean_evaluated), 4)
         );
+        row += &self.image_cell(
+            format!("{st}_{f:06}_gt_depth.png"),
+            Some(raster::colour_depth(m.gt, lo, hi)),
+        )?;
+        row += &self.image_cell(
+            format!("{st}_{f:06}_depth.png"),
+            m.pred.map(|p| raster::colour_depth(p, lo, hi)),
+        )?;
+        row += &self.image_cell(
+            format!("{st}_{f:06}_error.png"),
+            err.as_ref().map(|e| raster::colour_error(e, ERROR_MAX_M)),
+        )?;
+        row += &self.image_cell(
+            format!("{st}_{f:06}_signed_error.png"),
+            signed
+                .as_ref()
+                .map(|e| raster::colour_signed_error(e, ERROR_MAX_M)),
+        )?;
+        row += &self.image_cell(
+            format!("{st}_{f:06}_gt_objects.png"),
+            Some(raster::colour_instances(m.inst)),
+        )?;
+        let objects = run.join("objects").join(format!("{f:06}.png"));
+        if objects.is_file() {
+            let rel = format!(
+                "../{}/{}/{}/{st}/objects/{f:06}.png",
+                layout::RUNS_DIR,
+                self.entry.name,
+                method.source(self.state)
+            );
+            let _ = write!(
+                row,
+                "<td><img src=\"{}\" alt=\"predicted objects\"></td>",
+                escape(&rel)
+            );
+        } else {
+            row += "<td class=\"note\">–</td>";
+        }
+        row += "</tr>\n";
+        Ok(row)
+    }
+
+    /// Accuracy against the threshold, one line per method that ran this state.
+    fn accuracy_chart(&self, manifest: &Manifest) -> Result<String, ReportError> {
         let mut acc = Vec::new();
         for m in owners(manifest, self.state) {
             if let Some(x) = read_metrics(&layout::run_dir(
@@ -507,43 +550,49 @@ impl StateView<'_> {
                 });
             }
         }
-        b += &svg::line_chart(
-            &format!("accuracy vs threshold at {st}"),
+        Ok(svg::line_chart(
+            &format!("accuracy vs threshold at {}", self.state.as_str()),
             &acc,
             "threshold (cm)",
             "pixels within (%)",
             Some((0.0, 100.0)),
             svg::Legend::BottomRight,
-        );
-        if self.state == State::T0 {
-            let mut loss = Vec::new();
-            for m in owners(manifest, State::T0) {
-                let dir = layout::run_dir(self.report, &self.entry.name, m, State::T0);
-                let Some(r) = read_run_json(&dir)? else {
-                    continue;
-                };
-                let pts: Vec<(f64, f64)> = r
-                    .loss_curve
-                    .iter()
-                    .flatten()
-                    .map(|&(i, l)| (i as f64, l as f64))
-                    .collect();
-                if !pts.is_empty() {
-                    loss.push(Series {
-                        name: m.name().into(),
-                        points: pts,
-                    });
-                }
+        ))
+    }
+
+    /// The t = 0 training loss curves, one line per method that records one.
+    fn loss_chart(&self, manifest: &Manifest) -> Result<String, ReportError> {
+        let mut loss = Vec::new();
+        for m in owners(manifest, State::T0) {
+            let dir = layout::run_dir(self.report, &self.entry.name, m, State::T0);
+            let Some(r) = read_run_json(&dir)? else {
+                continue;
+            };
+            let pts: Vec<(f64, f64)> = r
+                .loss_curve
+                .iter()
+                .flatten()
+                .map(|&(i, l)| (i as f64, l as f64))
+                .collect();
+            if !pts.is_empty() {
+                loss.push(Series {
+                    name: m.name().into(),
+                    points: pts,
+                });
             }
-            b += &svg::line_chart(
-                "training loss at t0",
-                &loss,
-                "iteration",
-                "loss",
-                None,
-                svg::Legend::TopRight,
-            );
         }
+        Ok(svg::line_chart(
+            "training loss at t0",
+            &loss,
+            "iteration",
+            "loss",
+            None,
+            svg::Legend::TopRight,
+        ))
+    }
+
+    /// Seconds per stage of each method that ran this state (its total when it records no stages).
+    fn time_bars(&self, manifest: &Manifest) -> Result<String, ReportError> {
         let mut bars = Vec::new();
         for m in owners(manifest, self.state) {
             let dir = layout::run_dir(self.report, &self.entry.name, m, self.state);
@@ -567,9 +616,65 @@ impl StateView<'_> {
             };
             bars.push((m.name().to_string(), segs));
         }
-        b += &svg::stacked_bars(&format!("time per stage at {st}"), &bars, "seconds");
-        b += "</div>\n";
-        Ok(b)
+        Ok(svg::stacked_bars(
+            &format!("time per stage at {}", self.state.as_str()),
+            &bars,
+            "seconds",
+        ))
+    }
+}
+
+/// The errors of one view's prediction on the evaluated pixels: rendered − GT and its absolute
+/// value (`None` without a prediction of the GT's size).
+struct ViewErrors {
+    signed: Option<DepthMap>,
+    absolute: Option<DepthMap>,
+}
+
+impl ViewErrors {
+    fn of(pred: Option<&DepthMap>, gt: &DepthMap, inst: &InstanceMap) -> Self {
+        let signed = pred
+            .filter(|p| p.same_size(gt))
+            .map(|p| raster::signed_error(p, gt, inst));
+        let absolute = signed.as_ref().map(raster::absolute);
+        Self { signed, absolute }
+    }
+}
+
+/// What one row of the views table shows.
+struct ViewMaps<'a> {
+    view: &'a View,
+    gt: &'a DepthMap,
+    inst: &'a InstanceMap,
+    pred: Option<&'a DepthMap>,
+    errors: &'a ViewErrors,
+}
+
+/// Counts of |error| in [`HIST_BINS`] bins over `[0, HIST_MAX_M]`, and of the errors beyond.
+struct ErrorHistogram {
+    bins: Vec<u64>,
+    overflow: u64,
+}
+
+impl Default for ErrorHistogram {
+    fn default() -> Self {
+        Self {
+            bins: vec![0; HIST_BINS],
+            overflow: 0,
+        }
+    }
+}
+
+impl ErrorHistogram {
+    /// Counts the evaluated pixels (not NaN) of an |error| map.
+    fn add(&mut self, e: &DepthMap) {
+        for &x in e.data.iter().filter(|x| !x.is_nan()) {
+            let bin = (x as f64 / HIST_MAX_M * HIST_BINS as f64) as usize;
+            match self.bins.get_mut(bin) {
+                Some(c) => *c += 1,
+                None => self.overflow += 1,
+            }
+        }
     }
 }
 
@@ -622,7 +727,29 @@ fn sequence_page(
             return Ok(page(&entry.name, &b));
         }
     };
-    b += "<h2>Training views</h2>\n<p class=\"note\">Outlined: the 6 views of the default t=0 reconstruction.</p>\n<div class=\"thumbs\">\n";
+    b += &training_thumbnails(report, entry, &seq)?;
+    for state in [State::T0, State::T1] {
+        b += &StateView {
+            report,
+            entry,
+            seq: &seq,
+            state,
+        }
+        .html(manifest)?;
+    }
+    Ok(page(&entry.name, &b))
+}
+
+/// The training photographs of both states as thumbnails (written under the sequence's assets), the
+/// default t = 0 reconstruction's views outlined.
+fn training_thumbnails(
+    report: &Path,
+    entry: &SequenceEntry,
+    seq: &Sequence,
+) -> Result<String, ReportError> {
+    let mut b = String::from(
+        "<h2>Training views</h2>\n<p class=\"note\">Outlined: the 6 views of the default t=0 reconstruction.</p>\n<div class=\"thumbs\">\n",
+    );
     let used = ViewCount::Six.frames();
     for (state, views) in [(State::T0, &seq.train_t0), (State::T1, &seq.train_t1)] {
         for v in views {
@@ -645,16 +772,7 @@ fn sequence_page(
         }
     }
     b += "</div>\n";
-    for state in [State::T0, State::T1] {
-        b += &StateView {
-            report,
-            entry,
-            seq: &seq,
-            state,
-        }
-        .html(manifest)?;
-    }
-    Ok(page(&entry.name, &b))
+    Ok(b)
 }
 
 /// Writes `index.html` and one page per sequence; returns the path of `index.html`.

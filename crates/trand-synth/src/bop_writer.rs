@@ -7,13 +7,13 @@
 
 use crate::error::SynthError;
 use crate::physics::Pose;
-use crate::shapes::Mesh;
 use crate::trace::ViewImages;
 use glam::{DMat3, DQuat, DVec3};
 use serde::Serialize;
 use serde::ser::SerializeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use trand_core::Mesh;
 use trand_core::camera::Camera;
 
 /// `scene_camera.json` entry.
@@ -213,17 +213,17 @@ pub fn write_ply(path: &Path, mesh: &Mesh) -> Result<(), SynthError> {
     let mut body = String::new();
     body.push_str(&format!(
         "ply\nformat ascii 1.0\ncomment units: millimetres, model frame\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-        mesh.positions.len(),
-        mesh.triangles.len()
+        mesh.vertices.len(),
+        mesh.faces.len()
     ));
-    for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
-        let p = *p * 1000.0;
+    for (p, n) in mesh.points().zip(&mesh.normals) {
+        let p = p * 1000.0;
         body.push_str(&format!(
             "{:.4} {:.4} {:.4} {:.5} {:.5} {:.5}\n",
-            p.x, p.y, p.z, n.x, n.y, n.z
+            p.x, p.y, p.z, n[0], n[1], n[2]
         ));
     }
-    for t in &mesh.triangles {
+    for t in &mesh.faces {
         body.push_str(&format!("3 {} {} {}\n", t[0], t[1], t[2]));
     }
     w.write_all(body.as_bytes()).map_err(io_err(path))?;
@@ -246,7 +246,7 @@ pub fn model_info(mesh: &Mesh) -> ModelInfo {
     let (lo, hi) = mesh.bounds();
     // Exact diameter (largest vertex–vertex distance) by the O(n²) scan: a few thousand
     // vertices, a few milliseconds per model.
-    let pts: Vec<DVec3> = mesh.positions.iter().map(|p| p.as_dvec3()).collect();
+    let pts: Vec<DVec3> = mesh.points().map(|p| p.as_dvec3()).collect();
     let mut diam = 0.0f64;
     for (i, a) in pts.iter().enumerate() {
         for b in &pts[i + 1..] {

@@ -15,9 +15,9 @@
 //!   depth), from parry's GJK/EPA.
 
 use crate::physics::Pose;
-use crate::shapes::Mesh;
 use glam::Vec3;
 use rapier3d::parry;
+use trand_core::Mesh;
 
 /// An axis-aligned box.
 #[derive(Clone, Copy, Debug)]
@@ -106,9 +106,9 @@ struct Placed {
 
 impl Placed {
     fn new(mesh: &Mesh, pose: &Pose) -> Self {
-        let points: Vec<Vec3> = mesh.positions.iter().map(|p| pose.apply(*p)).collect();
+        let points: Vec<Vec3> = mesh.points().map(|p| pose.apply(p)).collect();
         let triangles = mesh
-            .triangles
+            .faces
             .iter()
             .map(|t| t.map(|i| points[i as usize]))
             .collect();
@@ -224,10 +224,8 @@ mod tests {
         let gap = mesh_gap_m(&m, &at(0.0), &m, &at(0.0625), 0.01);
         assert!((gap - 0.0025).abs() < 1e-5, "gap {gap}");
         assert_eq!(mesh_gap_m(&m, &at(0.0), &m, &at(0.2), 0.01), 0.01);
-        let (ha, hb) = (
-            Hull::new(&m.positions).unwrap(),
-            Hull::new(&m.positions).unwrap(),
-        );
+        let points: Vec<Vec3> = m.points().collect();
+        let (ha, hb) = (Hull::new(&points).unwrap(), Hull::new(&points).unwrap());
         let d = hull_distance_m(&ha, &at(0.0), &hb, &at(0.0625));
         assert!((d - 0.0025).abs() < 1e-4, "hull distance {d}");
         let d = hull_distance_m(&ha, &at(0.0), &hb, &at(0.055));

@@ -111,9 +111,8 @@ fn object(
 /// from the model origin.
 fn footprint_at(m: &Model, q: Quat) -> f32 {
     m.mesh
-        .positions
-        .iter()
-        .map(|p| (q * *p).truncate().length())
+        .points()
+        .map(|p| (q * p).truncate().length())
         .fold(0.0, f32::max)
 }
 

@@ -215,17 +215,15 @@ pub(crate) fn orientation_quat(o: Orientation, yaw: f32) -> Quat {
 /// Lowest and highest world z of a model under a rotation.
 pub(crate) fn z_range(m: &Model, q: Quat) -> (f32, f32) {
     m.mesh
-        .positions
-        .iter()
-        .map(|p| (q * *p).z)
+        .points()
+        .map(|p| (q * p).z)
         .fold((f32::MAX, f32::MIN), |(lo, hi), z| (lo.min(z), hi.max(z)))
 }
 
 /// Footprint radius: largest horizontal distance of a vertex from the model origin.
 pub(crate) fn footprint(m: &Model) -> f32 {
     m.mesh
-        .positions
-        .iter()
+        .points()
         .map(|p| p.truncate().length())
         .fold(0.0, f32::max)
 }

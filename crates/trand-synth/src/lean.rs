@@ -176,13 +176,7 @@ pub fn support_tipping_margin(layout: &Layout, rest: &[Pose]) -> f32 {
 /// from their mean.
 fn base_radius(m: &Model) -> f32 {
     let (lo, _) = m.mesh.bounds();
-    let ring: Vec<Vec3> = m
-        .mesh
-        .positions
-        .iter()
-        .copied()
-        .filter(|p| p.z < lo.z + 1e-5)
-        .collect();
+    let ring: Vec<Vec3> = m.mesh.points().filter(|p| p.z < lo.z + 1e-5).collect();
     let centre = ring.iter().sum::<Vec3>() / ring.len().max(1) as f32;
     ring.iter()
         .map(|p| (*p - centre).truncate().length())

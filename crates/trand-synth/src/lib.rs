@@ -428,77 +428,133 @@ fn pose_info(p: &Pose) -> PoseInfo {
     }
 }
 
-fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError> {
-    let t_start = Instant::now();
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(config.seed);
-    let params = PhysicsParams::default();
+/// The t = 0 scene: the layout, its settled poses and how its supporting pair turned out.
+struct SceneT0 {
+    layout: layout::Layout,
+    rest: Vec<Pose>,
+    stats: physics::SettleStats,
+    seat: Option<SeatCorrection>,
+    relation: Relation,
+    /// The relation of every layout tried, the kept one last.
+    attempts: Vec<Relation>,
+}
 
-    // 1-2. Layout and t = 0 settling, retried until the supporting pair holds.
-    let n_objects = config.objects.draw(&mut rng);
+/// The t = 1 scene: which object was removed and where the others came to rest.
+struct SceneT1 {
+    removed: usize,
+    /// Indices (into the layout's objects) of the remaining objects, in order.
+    keep: Vec<usize>,
+    /// Poses of the objects `keep`, in the same order.
+    rest: Vec<Pose>,
+    stats: physics::SettleStats,
+    simulated: Option<Vec<u32>>,
+    displacement: BTreeMap<String, Displacement>,
+    snapped: Vec<u32>,
+}
+
+/// The cameras of every split, around the workspace centre.
+struct SceneCameras {
+    k: trand_core::Intrinsics,
+    centre: DVec3,
+    train: Vec<trand_core::camera::Camera>,
+    ring: cameras::RingInfo,
+    test0: Vec<trand_core::camera::Camera>,
+    test1: Vec<trand_core::camera::Camera>,
+}
+
+/// Steps 1-2: samples layouts and settles them until the supporting pair holds (at most
+/// [`MAX_LAYOUT_ATTEMPTS`] tries; the last one is kept either way).
+fn settle_t0(config: &SynthConfig, rng: &mut impl rand::Rng, params: &PhysicsParams) -> SceneT0 {
+    let n_objects = config.objects.draw(rng);
     let mut attempts = Vec::new();
-    let (layout, settled) = loop {
+    loop {
         let layout = match config.family {
-            SceneFamily::Stacked => layout::sample(&mut rng, n_objects, config.lathe_slices),
-            SceneFamily::Containers => containers::sample(&mut rng, n_objects, config.lathe_slices),
+            SceneFamily::Stacked => layout::sample(rng, n_objects, config.lathe_slices),
+            SceneFamily::Containers => containers::sample(rng, n_objects, config.lathe_slices),
         };
-        let settled = relation::settle_event(&layout, &params);
+        let settled = relation::settle_event(&layout, params);
         let done = settled.relation.verified || attempts.len() as u32 + 1 >= MAX_LAYOUT_ATTEMPTS;
         attempts.push(settled.relation.clone());
         if done {
-            break (layout, settled);
+            return SceneT0 {
+                layout,
+                rest: settled.rest,
+                stats: settled.stats,
+                seat: settled.seat,
+                relation: settled.relation,
+                attempts,
+            };
         }
+    }
+}
+
+/// The object taken away at t = 1: the support, or, if the pair did not hold, the object closest to
+/// another.
+fn removed_object(t0: &SceneT0) -> usize {
+    if t0.relation.verified {
+        return t0.layout.event.support;
+    }
+    let rest = &t0.rest;
+    let nearest = |i: usize| {
+        (0..rest.len())
+            .filter(|&j| j != i)
+            .map(|j| rest[i].translation.distance(rest[j].translation))
+            .fold(f32::MAX, f32::min)
     };
-    let relation::Settled {
-        rest: rest0,
-        stats: stats0,
-        seat,
-        relation,
-    } = settled;
-    // t = 1: remove the support (or, if the pair did not hold, the object closest to another).
-    let removed = if relation.verified {
-        layout.event.support
-    } else {
-        let n = rest0.len();
-        (0..n)
-            .min_by(|&a, &b| {
-                let d = |i: usize| {
-                    (0..n)
-                        .filter(|&j| j != i)
-                        .map(|j| rest0[i].translation.distance(rest0[j].translation))
-                        .fold(f32::MAX, f32::min)
-                };
-                d(a).total_cmp(&d(b))
-            })
-            .unwrap_or(0)
-    };
-    let keep: Vec<usize> = (0..layout.objects.len())
+    (0..rest.len())
+        .min_by(|&a, &b| nearest(a).total_cmp(&nearest(b)))
+        .unwrap_or(0)
+}
+
+/// Step 2 at t = 1: removes an object ([`removed_object`]) and settles the others; an object whose
+/// vertices moved less than [`physics::STATIC_SNAP_MM`] keeps its t = 0 pose exactly.
+fn settle_after_removal(config: &SynthConfig, t0: &SceneT0, params: &PhysicsParams) -> SceneT1 {
+    let removed = removed_object(t0);
+    let keep: Vec<usize> = (0..t0.layout.objects.len())
         .filter(|&i| i != removed)
         .collect();
-    let (mut rest1, stats1, simulated) =
-        settle_t1(&layout, &rest0, &keep, t1_motion(config.family), &params);
+    let (mut rest, stats, simulated) = settle_t1(
+        &t0.layout,
+        &t0.rest,
+        &keep,
+        t1_motion(config.family),
+        params,
+    );
     let mut displacement = BTreeMap::new();
     let mut snapped = Vec::new();
     for (k, &i) in keep.iter().enumerate() {
-        let pts = &layout.objects[i].model.mesh.positions;
-        let max_mm = physics::max_vertex_displacement_mm(pts, &rest0[i], &rest1[k]);
+        let (object, before) = (&t0.layout.objects[i], &t0.rest[i]);
+        let pts: Vec<glam::Vec3> = object.model.mesh.points().collect();
+        let max_mm = physics::max_vertex_displacement_mm(&pts, before, &rest[k]);
         let snap = max_mm < physics::STATIC_SNAP_MM;
         if snap {
-            rest1[k] = rest0[i];
-            snapped.push(layout.objects[i].id);
+            rest[k] = *before;
+            snapped.push(object.id);
         }
         displacement.insert(
-            layout.objects[i].id.to_string(),
+            object.id.to_string(),
             Displacement {
-                translation_mm: rest0[i].translation.distance(rest1[k].translation) * 1000.0,
-                rotation_deg: physics::rotation_deg(&rest0[i], &rest1[k]),
+                translation_mm: before.translation.distance(rest[k].translation) * 1000.0,
+                rotation_deg: physics::rotation_deg(before, &rest[k]),
                 max_vertex_displacement_mm: if snap { 0.0 } else { max_mm },
                 static_snapped: snap,
             },
         );
     }
-    let physics_s = t_start.elapsed().as_secs_f64();
+    SceneT1 {
+        removed,
+        keep,
+        rest,
+        stats,
+        simulated,
+        displacement,
+        snapped,
+    }
+}
 
-    // 3. Cameras around the workspace centre.
+/// Step 3: the training rig and the two test sets, around the objects' mean position at 3 cm
+/// height.
+fn draw_cameras(config: &SynthConfig, rest0: &[Pose], rng: &mut impl rand::Rng) -> SceneCameras {
     let k = cameras::intrinsics(config.width, config.height);
     let mean = rest0
         .iter()
@@ -506,11 +562,47 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         .sum::<DVec3>()
         / rest0.len() as f64;
     let centre = DVec3::new(mean.x, mean.y, 0.03);
-    let (train, ring) = cameras::train_views(k, centre, config.rig, &mut rng);
-    let test0 = cameras::test_views(k, centre, config.test_views, &mut rng);
-    let test1 = cameras::test_views(k, centre, config.test_views, &mut rng);
+    let (train, ring) = cameras::train_views(k, centre, config.rig, rng);
+    let test0 = cameras::test_views(k, centre, config.test_views, rng);
+    let test1 = cameras::test_views(k, centre, config.test_views, rng);
+    SceneCameras {
+        k,
+        centre,
+        train,
+        ring,
+        test0,
+        test1,
+    }
+}
 
-    // 4-5. Render and write.
+/// A progress bar over `total_rows` image rows, drawn or hidden as the configuration says.
+fn progress_bar(progress: Progress, total_rows: u64) -> indicatif::ProgressBar {
+    match progress {
+        Progress::Bar => {
+            let b = indicatif::ProgressBar::new(total_rows);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{msg:>8} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
+                )
+                .expect("static template")
+                .progress_chars("=> "),
+            );
+            b
+        }
+        Progress::Hidden => indicatif::ProgressBar::hidden(),
+    }
+}
+
+/// Steps 4-5: renders every split of both states and writes its images and BOP JSON under `dir`;
+/// returns the number of views written.
+fn render_splits(
+    config: &SynthConfig,
+    dir: &Path,
+    t0: &SceneT0,
+    t1: &SceneT1,
+    cams: &SceneCameras,
+) -> Result<usize, SynthError> {
+    let layout = &t0.layout;
     let placed = |poses: &[(usize, Pose)]| -> Vec<Placed<'_>> {
         poses
             .iter()
@@ -526,38 +618,29 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             })
             .collect()
     };
-    let state0: Vec<(usize, Pose)> = rest0.iter().copied().enumerate().collect();
-    let state1: Vec<(usize, Pose)> = keep.iter().copied().zip(rest1.iter().copied()).collect();
+    let state0: Vec<(usize, Pose)> = t0.rest.iter().copied().enumerate().collect();
+    let state1: Vec<(usize, Pose)> = t1
+        .keep
+        .iter()
+        .copied()
+        .zip(t1.rest.iter().copied())
+        .collect();
     let scenes = [
         RenderScene::new(&placed(&state0), layout.env),
         RenderScene::new(&placed(&state1), layout.env),
     ];
     let states = [&state0, &state1];
-    let splits: [(&str, usize, Vec<trand_core::camera::Camera>); 4] = [
-        ("train_0", 0, train.clone()),
-        ("test_0", 0, test0),
-        ("train_1", 1, vec![train[0]]),
-        ("test_1", 1, test1),
+    let splits: [(&str, usize, &[trand_core::camera::Camera]); 4] = [
+        ("train_0", 0, &cams.train),
+        ("test_0", 0, &cams.test0),
+        ("train_1", 1, &cams.train[..1]),
+        ("test_1", 1, &cams.test1),
     ];
     let total_rows: u64 = splits
         .iter()
         .map(|s| s.2.len() as u64 * config.height as u64)
         .sum();
-    let bar = match config.progress {
-        Progress::Bar => {
-            let b = indicatif::ProgressBar::new(total_rows);
-            b.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{msg:>8} [{bar:40}] {percent:>3}% {elapsed_precise} eta {eta}",
-                )
-                .expect("static template")
-                .progress_chars("=> "),
-            );
-            b
-        }
-        Progress::Hidden => indicatif::ProgressBar::hidden(),
-    };
-    let t_render = Instant::now();
+    let bar = progress_bar(config.progress, total_rows);
     let settings = RenderSettings {
         samples_per_pixel: config.samples_per_pixel,
     };
@@ -598,9 +681,11 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         bop_writer::write_json(&split.join("scene_gt_info.json"), &FrameMap(info_map))?;
     }
     bar.finish_and_clear();
-    let render_s = t_render.elapsed().as_secs_f64();
+    Ok(views)
+}
 
-    // Models and sequence.json.
+/// Writes every object's model (`models/obj_{id}.ply`, millimetres) and `models_info.json`.
+fn write_models(dir: &Path, layout: &layout::Layout) -> Result<(), SynthError> {
     let models = dir.join("models");
     std::fs::create_dir_all(&models).map_err(|source| SynthError::Io {
         path: models.clone(),
@@ -611,9 +696,12 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
         bop_writer::write_ply(&models.join(format!("obj_{:06}.ply", o.id)), &o.model.mesh)?;
         infos.push((o.id, bop_writer::model_info(&o.model.mesh)));
     }
-    bop_writer::write_json(&models.join("models_info.json"), &FrameMap(infos))?;
+    bop_writer::write_json(&models.join("models_info.json"), &FrameMap(infos))
+}
 
-    let objects = layout
+/// Each object as `sequence.json` lists it: kind, material, dimensions and its poses in both states.
+fn object_infos(t0: &SceneT0, t1: &SceneT1) -> Vec<ObjectInfo> {
+    t0.layout
         .objects
         .iter()
         .enumerate()
@@ -629,15 +717,30 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
                 initial_mode: o.orientation,
             },
             initial_mode: o.orientation,
-            pose_t0: pose_info(&rest0[i]),
-            pose_t1: keep
+            pose_t0: pose_info(&t0.rest[i]),
+            pose_t1: t1
+                .keep
                 .iter()
                 .position(|&j| j == i)
-                .map(|k| pose_info(&rest1[k])),
-            removed_at_t1: i == removed,
+                .map(|k| pose_info(&t1.rest[k])),
+            removed_at_t1: i == t1.removed,
         })
-        .collect();
-    let seq = Sequence {
+        .collect()
+}
+
+/// The record written as `sequence.json`: conventions, objects, the t = 0 relation and the t = 1
+/// change, cameras, physics and rendering settings.
+fn sequence_record(
+    config: &SynthConfig,
+    t0: SceneT0,
+    t1: SceneT1,
+    cams: SceneCameras,
+    params: PhysicsParams,
+) -> Sequence {
+    let k = cams.k;
+    let objects = object_infos(&t0, &t1);
+    let removed = &t0.layout.objects[t1.removed];
+    Sequence {
         format: "BlenderProc/BOP train_pbr-like transparent-object sequence (trand-synth)",
         generator: format!("trand-synth {}", env!("CARGO_PKG_VERSION")),
         seed: config.seed,
@@ -665,28 +768,28 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             "t1": {"train": "train_1 (frame 0 only, same pose as train_0 frame 0)", "test": "test_1"}
         }),
         objects,
-        relation_t0: relation,
-        removed_obj_id: layout.objects[removed].id,
-        removed_obj_kind: layout.objects[removed].model.kind,
-        displacement_t0_to_t1: displacement,
-        workspace_center_m: centre.to_array(),
+        relation_t0: t0.relation,
+        removed_obj_id: removed.id,
+        removed_obj_kind: removed.model.kind,
+        displacement_t0_to_t1: t1.displacement,
+        workspace_center_m: cams.centre.to_array(),
         cameras: CamerasInfo {
-            train_ring: ring,
+            train_ring: cams.ring,
             test: "uniform azimuth, elevation 20-70 deg, distance 0.45-0.8 m, looking at centre + U(+-4 cm, +-4 cm, +-2 cm)",
             test_views_per_state: config.test_views,
         },
-        environment: layout.env,
+        environment: t0.layout.env,
         physics: PhysicsInfo {
             engine: "rapier3d 0.36 (single-threaded, fixed step)",
             collision_shape: "CONVEX_HULL (table: BOX)",
             params,
             static_snap_max_vertex_mm: physics::STATIC_SNAP_MM,
-            t0: stats0,
-            t1: stats1,
-            layout_attempts: attempts,
-            static_snapped_t1: snapped,
-            t1_simulated_obj_ids: simulated,
-            t0_seat_correction: seat,
+            t0: t0.stats,
+            t1: t1.stats,
+            layout_attempts: t0.attempts,
+            static_snapped_t1: t1.snapped,
+            t1_simulated_obj_ids: t1.simulated,
+            t0_seat_correction: t0.seat,
         },
         render: RenderInfo {
             engine: "trand-synth Whitted ray tracer (Fresnel/Snell dielectrics, Beer-Lambert absorption, area-light shadows)",
@@ -696,15 +799,34 @@ fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError
             max_depth: trace::MAX_DEPTH,
             lathe_slices: config.lathe_slices,
         },
-    };
+    }
+}
+
+/// The steps of [`generate`] (see the crate docs), writing into `dir`. One random stream, seeded by
+/// the configuration, is drawn from in a fixed order: the object count and layouts, then the
+/// cameras; each view's render has its own seed.
+fn generate_into(config: &SynthConfig, dir: &Path) -> Result<Summary, SynthError> {
+    let t_start = Instant::now();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(config.seed);
+    let params = PhysicsParams::default();
+    let t0 = settle_t0(config, &mut rng, &params);
+    let t1 = settle_after_removal(config, &t0, &params);
+    let physics_s = t_start.elapsed().as_secs_f64();
+
+    let cams = draw_cameras(config, &t0.rest, &mut rng);
+    let t_render = Instant::now();
+    let views = render_splits(config, dir, &t0, &t1, &cams)?;
+    let render_s = t_render.elapsed().as_secs_f64();
+
+    write_models(dir, &t0.layout)?;
+    let seq = sequence_record(config, t0, t1, cams, params);
     bop_writer::write_json(&dir.join("sequence.json"), &seq)?;
-    let relation_verified = seq.relation_t0.verified;
     Ok(Summary {
         out: dir.to_path_buf(),
         views,
         removed_obj_id: seq.removed_obj_id,
         relation: seq.relation_t0.kind,
-        relation_verified,
+        relation_verified: seq.relation_t0.verified,
         physics_s,
         render_s,
         total_s: t_start.elapsed().as_secs_f64(),

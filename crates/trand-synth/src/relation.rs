@@ -37,9 +37,8 @@ pub fn world_points<'a>(
     layout.objects[i]
         .model
         .mesh
-        .positions
-        .iter()
-        .map(move |p| pose.apply(*p))
+        .points()
+        .map(move |p| pose.apply(p))
 }
 
 /// Lowest world z of object `i`'s mesh (m).

@@ -8,9 +8,9 @@
 
 use crate::bvh::{Bvh, Tri};
 use crate::material::{Material, Texture};
-use crate::shapes::Mesh;
 use glam::{Quat, Vec3};
 use serde::Serialize;
+use trand_core::Mesh;
 
 /// The square table top at `z = 0`.
 #[derive(Clone, Copy, Debug, Serialize)]
@@ -184,12 +184,12 @@ impl RenderScene {
         let mut objects = Vec::new();
         for (k, p) in placed.iter().enumerate() {
             let world = |v: Vec3| p.rotation * v + p.translation;
-            for t in &p.mesh.triangles {
-                let [a, b, c] = t.map(|i| world(p.mesh.positions[i as usize]));
+            for t in &p.mesh.faces {
+                let [a, b, c] = t.map(|i| world(Vec3::from(p.mesh.vertices[i as usize])));
                 tris.push(Tri::new(a, b, c));
                 shading.push(TriShading {
                     object: k as u32,
-                    normals: t.map(|i| p.rotation * p.mesh.normals[i as usize]),
+                    normals: t.map(|i| p.rotation * Vec3::from(p.mesh.normals[i as usize])),
                 });
             }
             objects.push(RenderObject {

@@ -11,80 +11,18 @@
 //! are averaged (smooth glass walls refract smoothly); sharper turns keep a crease.
 //!
 //! The mug's handle is a separate closed tube (a torus arc) whose ends are buried in the wall.
-//! Models are centred on their axis-aligned bounding box, in metres.
+//! Models are [`trand_core::Mesh`]es with per-vertex normals, centred on their axis-aligned
+//! bounding box, in metres.
 
 use glam::{Vec2, Vec3};
 use rand::RngExt;
 use serde::Serialize;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
+use trand_core::Mesh;
 
 /// Profile turns below this angle are shaded smoothly; above it they keep a crease (rim edges,
 /// base corners). 35° keeps the 10-20 segment arcs smooth while the wall/base corner stays sharp.
 pub const SMOOTH_ANGLE_DEG: f32 = 35.0;
-
-/// An indexed triangle mesh with per-vertex outward normals (model frame, metres).
-#[derive(Clone, Debug, Default)]
-pub struct Mesh {
-    pub positions: Vec<Vec3>,
-    pub normals: Vec<Vec3>,
-    pub triangles: Vec<[u32; 3]>,
-}
-
-impl Mesh {
-    /// Appends another mesh (indices shifted).
-    pub fn append(&mut self, other: &Mesh) {
-        let base = self.positions.len() as u32;
-        self.positions.extend_from_slice(&other.positions);
-        self.normals.extend_from_slice(&other.normals);
-        self.triangles.extend(
-            other
-                .triangles
-                .iter()
-                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
-        );
-    }
-
-    /// Axis-aligned bounds `(min, max)`.
-    pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.positions.iter().fold(
-            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-        )
-    }
-
-    /// Moves the mesh so its bounding-box centre is the origin; returns the shift applied.
-    pub fn center_on_bounds(&mut self) -> Vec3 {
-        let (lo, hi) = self.bounds();
-        let c = 0.5 * (lo + hi);
-        for p in &mut self.positions {
-            *p -= c;
-        }
-        -c
-    }
-
-    /// Enclosed volume by the divergence theorem, `V = Σ (v0 · (v1 × v2)) / 6` (closed meshes).
-    pub fn volume(&self) -> f32 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| self.positions[i as usize]);
-                a.dot(b.cross(c)) / 6.0
-            })
-            .sum()
-    }
-
-    /// Centre of mass of the enclosed solid (uniform density, closed meshes): the tetrahedra
-    /// from the origin to each triangle, weighted by their signed volumes,
-    /// `c = Σ V_t (a + b + c) / 4 / Σ V_t` with `V_t = a · (b × c) / 6`.
-    pub fn centroid(&self) -> Vec3 {
-        let (moment, volume) = self.triangles.iter().fold((Vec3::ZERO, 0.0), |(m, v), t| {
-            let [a, b, c] = t.map(|i| self.positions[i as usize]);
-            let vt = a.dot(b.cross(c)) / 6.0;
-            (m + vt * (a + b + c) / 4.0, v + vt)
-        });
-        moment / volume
-    }
-}
 
 /// Revolves a closed profile about the z axis. `profile` runs from the axis (r = 0) to the axis;
 /// with the outside wall traversed upwards first, triangles face outwards.
@@ -120,14 +58,17 @@ pub fn lathe(profile: &[Vec2], slices: u32) -> Mesh {
             continue;
         }
         let (n0, n1) = (vertex_normal(s, false), vertex_normal(s, true));
-        let base = mesh.positions.len() as u32;
+        let base = mesh.vertices.len() as u32;
         for k in 0..=slices {
             let phi = TAU * (k % slices) as f32 / slices as f32;
             let (sn, cs) = phi.sin_cos();
             for (p, nn) in [(p0, n0), (p1, n1)] {
-                mesh.positions.push(Vec3::new(p.x * cs, p.x * sn, p.y));
-                mesh.normals
-                    .push(Vec3::new(nn.x * cs, nn.x * sn, nn.y).normalize_or_zero());
+                mesh.vertices.push([p.x * cs, p.x * sn, p.y]);
+                mesh.normals.push(
+                    Vec3::new(nn.x * cs, nn.x * sn, nn.y)
+                        .normalize_or_zero()
+                        .to_array(),
+                );
             }
         }
         for k in 0..slices {
@@ -135,10 +76,10 @@ pub fn lathe(profile: &[Vec2], slices: u32) -> Mesh {
             let (b0, b1) = (base + 2 * (k + 1), base + 2 * (k + 1) + 1);
             // Quad (a0, b0, b1, a1); skip the triangle that collapses on the axis.
             if p0.x > 1e-9 {
-                mesh.triangles.push([a0, b0, b1]);
+                mesh.faces.push([a0, b0, b1]);
             }
             if p1.x > 1e-9 {
-                mesh.triangles.push([a0, b1, a1]);
+                mesh.faces.push([a0, b1, a1]);
             }
         }
     }
@@ -372,7 +313,7 @@ pub fn collision_points(profile: &[Vec2], extra: Option<&Mesh>, fit: HullFit) ->
         }
     }
     if let Some(e) = extra {
-        pts.extend(e.positions.iter().step_by(4));
+        pts.extend(e.points().step_by(4));
     }
     pts
 }
@@ -482,7 +423,8 @@ pub fn build_fitted(kind: ShapeKind, rng: &mut impl rand::Rng, slices: u32, fit:
     let mut mesh = lathe(&profile, slices);
     let mut hull_points = collision_points(&profile, extra.as_ref(), fit);
     if let Some(h) = extra {
-        mesh.append(&h);
+        mesh.append(&h)
+            .expect("a lathed model and its handle both carry normals and few vertices");
     }
     let shift = mesh.center_on_bounds();
     for p in &mut hull_points {
@@ -561,8 +503,8 @@ fn handle_tube(r_mid: f32, zc: f32, major: f32, tube: f32, slices: u32) -> Mesh 
         for k in 0..around {
             let b = TAU * k as f32 / around as f32;
             let n = radial * b.cos() + binormal * b.sin();
-            m.positions.push(c + tube * n);
-            m.normals.push(n);
+            m.vertices.push((c + tube * n).to_array());
+            m.normals.push(n.to_array());
         }
     }
     for i in 0..rings {
@@ -574,8 +516,8 @@ fn handle_tube(r_mid: f32, zc: f32, major: f32, tube: f32, slices: u32) -> Mesh 
                 (i + 1) * around + k,
                 (i + 1) * around + k1,
             );
-            m.triangles.push([a0, a1, b1]);
-            m.triangles.push([a0, b1, b0]);
+            m.faces.push([a0, a1, b1]);
+            m.faces.push([a0, b1, b0]);
         }
     }
     m

@@ -1,8 +1,10 @@
-//! Test helpers: a tiny BOP sequence with ready-made predictions, and a stand-in `trand` script that
-//! fakes `synth`, `reconstruct` and `update` (copying those predictions) while `eval` is the real one.
+//! Test helpers: running the real `trand` ([`trand_in`], [`ok`], [`fails_with`], [`tiny_run`]), a tiny
+//! BOP sequence with ready-made predictions, and a stand-in `trand` script that fakes `synth`,
+//! `reconstruct` and `update` (copying those predictions) while `eval` is the real one.
 
 #![allow(dead_code)]
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
@@ -209,4 +211,51 @@ pub fn text(o: &Output) -> String {
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
     )
+}
+
+/// Runs the real `trand` with `args` in the folder `cwd`.
+pub fn trand_in<S: AsRef<OsStr>>(cwd: &Path, args: &[S]) -> Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_trand"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .unwrap()
+}
+
+/// The output of a run that must have succeeded (the assertion shows it otherwise).
+pub fn ok(out: Output) -> String {
+    let t = text(&out);
+    assert!(out.status.success(), "{t}");
+    t
+}
+
+/// Asserts that a run failed (non-zero, not a panic) with every one of `needles` in its output.
+pub fn fails_with(o: &Output, needles: &[&str]) {
+    let t = text(o);
+    assert!(!o.status.success(), "succeeded: {t}");
+    assert!(!t.contains("panicked"), "panicked: {t}");
+    for n in needles {
+        assert!(t.contains(n), "`{n}` not in: {t}");
+    }
+}
+
+/// In `dir`: a tiny generated sequence `seq` (`trand synth --preset tiny --seed 3`) and its t = 0 run
+/// `run0` after `iterations` training iterations.
+pub fn tiny_run(dir: &Path, iterations: u32) {
+    ok(trand_in(
+        dir,
+        &["synth", "--preset", "tiny", "--seed", "3", "--out", "seq"],
+    ));
+    ok(trand_in(
+        dir,
+        &[
+            "reconstruct",
+            "--data",
+            "seq",
+            "--out",
+            "run0",
+            "--iterations",
+            &iterations.to_string(),
+        ],
+    ));
 }
