@@ -281,12 +281,12 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
     let coarse = opts
         .train
         .resolution
-        .coarse_factors(opts.downsample)
+        .coarse_levels(opts.downsample)
         .into_iter()
         .filter_map(|level| {
-            let f = targets::coarse_factor(level, opts.downsample, native.0, native.1)?;
+            let f = level.factor_for(opts.downsample, native.0, native.1)?;
             Some(build_at(f).map(|views| CoarseViews {
-                factor: level,
+                factor: level.factor,
                 views,
             }))
         })

@@ -52,21 +52,6 @@ pub struct CoarseViews {
     pub views: Vec<TrainView>,
 }
 
-/// The fewest pixels a coarse level leaves on an image's short side, so that the objects stay more than
-/// a few pixels wide: 640×480 goes down to 160×120 (the default schedule's factor 4), a 160×120 image
-/// to 80×60.
-pub const MIN_COARSE_SIDE: u32 = 60;
-
-/// The box-downsampling factor a schedule level of `level_factor` trains at for native images of
-/// `width × height` trained at `downsample`: the level's factor, but no coarser than
-/// [`MIN_COARSE_SIDE`] allows; `None` when that is not coarser than `downsample` (the level trains
-/// on the training views).
-pub fn coarse_factor(level_factor: u32, downsample: u32, width: u32, height: u32) -> Option<u32> {
-    let cap = (width.min(height) / MIN_COARSE_SIDE).max(1);
-    let f = level_factor.min(cap);
-    (f > downsample).then_some(f)
-}
-
 /// Colour of object channel `c` in the colour-coded mask: evenly spaced hues, full saturation, so that
 /// any two objects differ in at least one channel by ≥ 0.5. Channel 0 (background) is black.
 pub fn palette(c: usize) -> [f32; 3] {
@@ -264,16 +249,6 @@ pub fn build(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn coarse_levels_keep_the_short_side_and_never_go_finer_than_the_training_views() {
-        assert_eq!(coarse_factor(4, 1, 640, 480), Some(4));
-        assert_eq!(coarse_factor(16, 1, 640, 480), Some(8));
-        assert_eq!(coarse_factor(4, 1, 160, 120), Some(2));
-        assert_eq!(coarse_factor(2, 2, 640, 480), None);
-        assert_eq!(coarse_factor(4, 2, 640, 480), Some(4));
-        assert_eq!(coarse_factor(4, 1, 100, 80), None);
-    }
 
     #[test]
     fn palette_colours_are_distinct() {

@@ -104,7 +104,8 @@ impl<'a> Trainer<'a> {
 
     /// View `vi` at the resolution iteration `it` trains on.
     fn view_at(&self, it: u32, vi: usize) -> &'a TrainView {
-        let f = self.cfg.resolution.factor_at(it);
+        let done = it.saturating_sub(self.cfg.start_iteration);
+        let f = self.cfg.resolution.factor_at(done, self.cfg.iterations);
         match self.coarse.iter().find(|c| c.factor == f) {
             Some(c) => &c.views[vi],
             None => &self.views[vi],

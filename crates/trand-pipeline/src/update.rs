@@ -286,12 +286,12 @@ pub fn update_with_cancel(
         let coarse = opts
             .train
             .resolution
-            .coarse_factors(ds)
+            .coarse_levels(ds)
             .into_iter()
             .filter_map(|level| {
-                let f = targets::coarse_factor(level, ds, w, h)?;
+                let f = level.factor_for(ds, w, h)?;
                 Some(build(f).map(|v| targets::CoarseViews {
-                    factor: level,
+                    factor: level.factor,
                     views: vec![v],
                 }))
             })

@@ -233,11 +233,11 @@ mod tests {
             max_steps: 1100,
         };
         assert_eq!(o.train, want);
-        let o = read("[train]\nresolution = { coarse_to_fine = [{ factor = 2, until = 1070 }] }\n")
+        let o = read("[train]\nresolution = { coarse_to_fine = [{ factor = 2, until = 0.7 }] }\n")
             .unwrap();
         assert_eq!(o.train.start_iteration, 1000);
         assert_eq!(o.train.iterations, 100);
-        assert_eq!(o.train.resolution.factor_at(1070), 2);
+        assert_eq!(o.train.resolution.factor_at(70, 100), 2);
         assert_eq!(read("").unwrap().train, TrainConfig::t1());
     }
 

@@ -28,8 +28,8 @@ fn options() -> ReconstructOptions {
     // from the coarse level (80×60) to the training resolution (160×120) after iteration 60.
     o.train.iterations = 125;
     o.train.resolution = ResolutionSchedule::CoarseToFine(vec![ResolutionLevel {
-        factor: 2,
-        until: 60,
+        min_side: 60,
+        ..ResolutionLevel::new(2, 0.48)
     }]);
     o
 }

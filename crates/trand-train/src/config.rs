@@ -303,14 +303,48 @@ impl Default for ImageLossConfig {
     }
 }
 
-/// One coarse level of a [`ResolutionSchedule`]: iterations up to `until` (inclusive) fit the images
-/// box-downsampled by `factor` from their native resolution (never finer than the training
-/// downsampling: at `--downsample 2` a level of factor 2 trains at the training resolution).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// One coarse level of a [`ResolutionSchedule`]: the iterations up to the share `until` of the run
+/// (0.3: the first 30 %) fit the images box-downsampled by `factor` from their native resolution
+/// (never finer than the training downsampling: at `--downsample 2` a level of factor 2 trains at the
+/// training resolution).
+///
+/// The factor is capped so that the images keep at least `min_side` pixels on their short side (the
+/// objects must stay more than a few pixels wide): 640×480 goes down to 160×120, while a 160×120 image
+/// is not reduced at the default of 120.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ResolutionLevel {
     pub factor: u32,
-    pub until: u32,
+    pub until: f64,
+    #[serde(default = "default_min_side")]
+    pub min_side: u32,
+}
+
+/// See [`ResolutionLevel`].
+pub const DEFAULT_MIN_SIDE: u32 = 120;
+
+fn default_min_side() -> u32 {
+    DEFAULT_MIN_SIDE
+}
+
+impl ResolutionLevel {
+    /// Factor `factor` for the first share `until` of the run, at least [`DEFAULT_MIN_SIDE`] pixels.
+    pub fn new(factor: u32, until: f64) -> Self {
+        Self {
+            factor,
+            until,
+            min_side: DEFAULT_MIN_SIDE,
+        }
+    }
+
+    /// The box-downsampling factor this level trains at for native images of `width × height`
+    /// trained at `downsample`: `factor`, capped by `min_side`; `None` when that is not coarser than
+    /// `downsample` (the level trains on the training views).
+    pub fn factor_for(&self, downsample: u32, width: u32, height: u32) -> Option<u32> {
+        let cap = (width.min(height) / self.min_side.max(1)).max(1);
+        let f = self.factor.min(cap);
+        (f > downsample).then_some(f)
+    }
 }
 
 /// The largest factor a coarse level may use (640×480 → 40×30).
@@ -322,37 +356,39 @@ pub const MAX_COARSE_FACTOR: u32 = 16;
 /// to matters only once the geometry has settled. Fitting downsampled images then costs a quarter
 /// (factor 2) or a sixteenth (factor 4) of the per-pixel work — the rasterizer's tile kernels, SSIM
 /// and the photometric losses — while the per-surfel work is unchanged. The last iterations fit the
-/// training resolution, so the depth read out at native resolution sees native detail.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// training resolution, so the depth read out at native resolution sees native detail. Levels are
+/// shares of the run, so a shorter run keeps the same proportions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResolutionSchedule {
     /// Every iteration at the training resolution.
     Full,
-    /// Levels in increasing `until`: iteration `it` uses the first level with `it ≤ until`, and the
-    /// training resolution after the last one.
+    /// Levels in increasing `until`: the `done`-th of `total` iterations uses the first level with
+    /// `done ≤ round(until · total)`, and the training resolution after the last one.
     CoarseToFine(Vec<ResolutionLevel>),
 }
 
 impl ResolutionSchedule {
-    /// The downsampling factor from native resolution of iteration `it` (1 after the last level).
-    pub fn factor_at(&self, it: u32) -> u32 {
+    /// The downsampling factor from native resolution of the `done`-th iteration (1-based) of a run of
+    /// `total` iterations (1 after the last level).
+    pub fn factor_at(&self, done: u32, total: u32) -> u32 {
         match self {
             Self::Full => 1,
             Self::CoarseToFine(levels) => levels
                 .iter()
-                .find(|l| it <= l.until)
+                .find(|l| done as f64 <= (l.until * total as f64).round())
                 .map_or(1, |l| l.factor),
         }
     }
 
-    /// The distinct factors coarser than the training downsampling `finest`, in the order the schedule
-    /// first uses them.
-    pub fn coarse_factors(&self, finest: u32) -> Vec<u32> {
-        let mut out = Vec::new();
+    /// The levels with distinct factors coarser than the training downsampling `finest`, in the order
+    /// the schedule first uses them.
+    pub fn coarse_levels(&self, finest: u32) -> Vec<ResolutionLevel> {
+        let mut out: Vec<ResolutionLevel> = Vec::new();
         if let Self::CoarseToFine(levels) = self {
             for l in levels {
-                if l.factor > finest && !out.contains(&l.factor) {
-                    out.push(l.factor);
+                if l.factor > finest && !out.iter().any(|o| o.factor == l.factor) {
+                    out.push(*l);
                 }
             }
         }
@@ -368,6 +404,12 @@ impl ResolutionSchedule {
                 return Err(format!(
                     "resolution level {i}: factor {} outside 1..={MAX_COARSE_FACTOR}",
                     l.factor
+                ));
+            }
+            if !(l.until > 0.0 && l.until <= 1.0) {
+                return Err(format!(
+                    "resolution level {i}: until {} is not a share of the run in (0, 1]",
+                    l.until
                 ));
             }
             if i > 0 && l.until <= levels[i - 1].until {
@@ -459,14 +501,8 @@ impl Default for TrainConfig {
             object_loss: ObjectLossConfig::default(),
             geometry_loss: GeometryLossConfig::default(),
             resolution: ResolutionSchedule::CoarseToFine(vec![
-                ResolutionLevel {
-                    factor: 4,
-                    until: 300,
-                },
-                ResolutionLevel {
-                    factor: 2,
-                    until: 700,
-                },
+                ResolutionLevel::new(4, 0.3),
+                ResolutionLevel::new(2, 0.7),
             ]),
             early_stop: EarlyStop::Never,
             sh_degree: 0,
@@ -611,10 +647,10 @@ impl TrainConfig {
 mod tests {
     use super::*;
 
-    fn levels(l: &[(u32, u32)]) -> ResolutionSchedule {
+    fn levels(l: &[(u32, f64)]) -> ResolutionSchedule {
         ResolutionSchedule::CoarseToFine(
             l.iter()
-                .map(|&(factor, until)| ResolutionLevel { factor, until })
+                .map(|&(factor, until)| ResolutionLevel::new(factor, until))
                 .collect(),
         )
     }
@@ -636,24 +672,45 @@ mod tests {
 
     #[test]
     fn resolution_levels_apply_up_to_and_including_their_last_iteration() {
-        let s = levels(&[(4, 300), (2, 700)]);
+        let s = levels(&[(4, 0.3), (2, 0.7)]);
         let f: Vec<u32> = [1, 300, 301, 700, 701, 1000]
             .iter()
-            .map(|&it| s.factor_at(it))
+            .map(|&done| s.factor_at(done, 1000))
             .collect();
         assert_eq!(f, [4, 4, 2, 2, 1, 1]);
-        assert_eq!(s.coarse_factors(1), [4, 2]);
-        assert_eq!(s.coarse_factors(2), [4]);
-        assert_eq!(ResolutionSchedule::Full.factor_at(1), 1);
-        assert!(ResolutionSchedule::Full.coarse_factors(1).is_empty());
+        let f: Vec<u32> = [30, 31, 70, 71]
+            .iter()
+            .map(|&d| s.factor_at(d, 100))
+            .collect();
+        assert_eq!(f, [4, 2, 2, 1]);
+        let factors =
+            |finest| -> Vec<u32> { s.coarse_levels(finest).iter().map(|l| l.factor).collect() };
+        assert_eq!(factors(1), [4, 2]);
+        assert_eq!(factors(2), [4]);
+        assert_eq!(ResolutionSchedule::Full.factor_at(1, 1000), 1);
+        assert!(ResolutionSchedule::Full.coarse_levels(1).is_empty());
+        let l = ResolutionLevel::new(4, 0.3);
+        assert_eq!(l.factor_for(1, 640, 480), Some(4));
+        assert_eq!(l.factor_for(1, 320, 240), Some(2));
+        assert_eq!(l.factor_for(1, 160, 120), None);
+        assert_eq!(l.factor_for(2, 320, 240), None);
+        assert_eq!(ResolutionLevel::new(2, 0.7).factor_for(2, 640, 480), None);
+        let low = ResolutionLevel {
+            min_side: 60,
+            ..ResolutionLevel::new(16, 0.3)
+        };
+        assert_eq!(low.factor_for(1, 640, 480), Some(8));
     }
 
     #[test]
     fn resolution_levels_out_of_order_or_out_of_range_are_refused() {
         for bad in [
-            levels(&[(2, 700), (4, 300)]),
-            levels(&[(0, 10)]),
-            levels(&[(32, 10)]),
+            levels(&[(2, 0.7), (4, 0.3)]),
+            levels(&[(0, 0.1)]),
+            levels(&[(32, 0.1)]),
+            levels(&[(2, 1.5)]),
+            levels(&[(2, 0.0)]),
+            levels(&[(2, f64::NAN)]),
         ] {
             let c = TrainConfig {
                 resolution: bad.clone(),
@@ -666,10 +723,10 @@ mod tests {
     #[test]
     fn resolution_schedule_reads_from_toml_and_the_t1_refinement_overrides_it() {
         let c = TrainConfig::from_toml_str(
-            "resolution = { coarse_to_fine = [{ factor = 4, until = 300 }, { factor = 2, until = 700 }] }",
+            "resolution = { coarse_to_fine = [{ factor = 4, until = 0.3 }, { factor = 2, until = 0.7 }] }",
         )
         .unwrap();
-        assert_eq!(c.resolution, levels(&[(4, 300), (2, 700)]));
+        assert_eq!(c.resolution, levels(&[(4, 0.3), (2, 0.7)]));
         assert_eq!(TrainConfig::from_toml_str(&c.to_toml_string()).unwrap(), c);
         assert_eq!(TrainConfig::t1().resolution, ResolutionSchedule::Full);
     }
