@@ -27,8 +27,8 @@
 //! base node (`stencil`). The grid is dense over the bounding box of the particles' stencils,
 //! recomputed every substep, so world coordinates are used directly, like the authors' unbounded
 //! sparse grid, and memory follows the scene, not a fixed domain (a block-sparse grid would save
-//! nothing here: TRAN-D's particles are dense, tens to hundreds per cell, and the grid pass is a
-//! fraction of a percent of a substep). Node layout is `[z][y][x]` (x fastest), one `Vec4`
+//! little: TRAN-D's particles are dense, tens to hundreds per cell, so the grid is small beside
+//! them; BENCHMARKS.md §6). Node layout is `[z][y][x]` (x fastest), one `Vec4`
 //! `(mv_x, mv_y, mv_z, m)` (after the grid update `(v_x, v_y, v_z, m)`) per node, so that a node
 //! update is one SIMD multiply-add.
 //!
@@ -46,9 +46,10 @@
 //!
 //! # Stopping at rest
 //! [`StopAtRest`] ends [`MpmSolver::run`] early once the largest particle speed has stayed below a
-//! threshold for some frames ([`StopAtRest::TRAN_D`] explains the default). The elastic material
-//! has no damping, so a body that fell keeps oscillating and the criterion mostly fires when
-//! nothing fell.
+//! threshold for some frames ([`StopAtRest::TRAN_D`] explains the default). With TRAN-D's material
+//! it does not fire in practice: the material is soft for its density (`ρgh/E ≈ 0.35` for a 12 cm
+//! object), so every body, resting ones included, sags under its own weight and oscillates without
+//! damping; it ends the runs of stiffer materials and of scenes where nothing moves.
 
 mod config;
 mod grid;

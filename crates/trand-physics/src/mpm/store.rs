@@ -155,3 +155,41 @@ pub(super) fn sort_packs(packs: &mut Vec<Pack>, keys: impl Fn(&Pack) -> [u64; LA
         })
         .collect();
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sorting_moves_whole_particles_into_key_order_and_keeps_free_lanes_at_rest() {
+        // Seven particles (one free lane), keyed by descending x; two share a key (stable).
+        let xs: Vec<[f32; 3]> = [3.0, 1.0, 6.0, 5.0, 1.0, 0.0, 2.0]
+            .iter()
+            .map(|&x| [x, 10.0 * x, -x])
+            .collect();
+        let mut packs = packs_at_rest(&xs);
+        for p in &mut packs {
+            for l in 0..p.live {
+                // A velocity and deformation gradient that name the particle.
+                let id = p.id[l] as f32;
+                p.v[1].as_mut_array()[l] = id;
+                p.f[2][0].as_mut_array()[l] = 100.0 + id;
+            }
+        }
+        let key = |p: &Pack| std::array::from_fn(|l| (1000.0 - p.x[0].as_array()[l]) as u64);
+        sort_packs(&mut packs, key);
+        let order: Vec<u32> = packs.iter().flat_map(|p| p.id[..p.live].to_vec()).collect();
+        assert_eq!(order, [2, 3, 0, 6, 1, 4, 5]);
+        for p in &packs {
+            for l in 0..p.live {
+                let id = p.id[l] as usize;
+                assert_eq!(p.x(l).to_array(), xs[id]);
+                assert_eq!(p.v(l).y, id as f32);
+                assert_eq!(p.f(l).z_axis.x, 100.0 + id as f32);
+            }
+        }
+        let last = packs.last().unwrap();
+        assert_eq!(last.live, 3);
+        assert_eq!((last.v(3), last.f(3)), (Vec3::ZERO, Mat3::IDENTITY));
+    }
+}
