@@ -550,7 +550,8 @@ mod tests {
     fn filling_blank_rows_gives_the_bits_of_filtering_them() {
         let (w, h, c) = (21, 64, 3);
         // Content bands near the edges, bands closer than one and two window radii, one row alone.
-        let cases: [(&[(usize, usize)], &[(usize, usize)]); 4] = [
+        type Bands = &'static [(usize, usize)];
+        let cases: [(Bands, Bands); 4] = [
             (&[(0, 3), (30, 34)], &[(31, 35)]),
             (&[(12, 13)], &[(20, 26), (60, 64)]),
             (&[], &[(40, 41)]),
