@@ -51,15 +51,15 @@ default() {
 
 timed() {
     # the run's own summary line, then wall, CPU (user + system) and peak memory from GNU time
-    /usr/bin/time -o "$OUT/time/last" -f "  wall %e s, CPU %U+%S s, peak %M KiB" "$@" 2>/dev/null |
-        grep -E "reconstructed|updated"
+    /usr/bin/time -o "$OUT/time/last" -f "  wall %e s, CPU %U+%S s, peak %M KiB" "$@" 2>"$OUT/time/stderr" |
+        grep -E "reconstructed|updated" || { cat "$OUT/time/stderr"; exit 1; }
     cat "$OUT/time/last"
 }
 
 time_runs() {
     for s in seq_101 seq_105; do
         rm -rf "$OUT/time/$s"
-        mkdir -p "$OUT/time"
+        mkdir -p "$OUT/time/$s"
         echo "$s t=0 (defaults):"
         timed $T reconstruct --data "$DATA/blender/$s" --out "$OUT/time/$s/t0"
         echo "$s update (defaults):"
