@@ -9,7 +9,7 @@
 //! iteration faults it back in, zero-filled by the kernel. How often that happens depends on timing,
 //! and on this project's 2-core machine it swung from a few thousand faults per run to millions: a
 //! seq_105 t=0 run (1000 iterations) took 89.7 s with 6.4 M page faults and 164 s of CPU, and 64.4 s
-//! with 465 faults and 125 s of CPU once purging was off (BENCHMARKS.md §4). So trand turns
+//! with 465 faults and 125 s of CPU once purging was off (BENCHMARKS.md §10). So trand turns
 //! purging off: freed pages stay with the process for reuse, and the resident size stays at the run's
 //! high-water mark (360–400 MB for a t=0 run at 320×240) instead of shrinking between iterations.
 //!

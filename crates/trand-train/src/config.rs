@@ -197,7 +197,7 @@ impl Default for DensifyConfig {
             from_iteration: 0,
             // The reference densifies until 30 000, i.e. through all 1000 iterations. Stopping at 800
             // keeps ~48k surfels instead of ~55k for the last, native-resolution iterations of the
-            // coarse-to-fine schedule, at the same accuracy (BENCHMARKS.md §4).
+            // coarse-to-fine schedule, at the same accuracy (BENCHMARKS.md §1; until 500 lost precision, §10).
             until_iteration: 800,
             grad_threshold: 0.0002,
             percent_dense: 0.01,
