@@ -198,8 +198,12 @@ pub fn build(
             }
         }
     }
+    // The blocks tile the image from its top-left corner and drop the last `w0 mod f` columns (and
+    // rows), so the image is `w0 / f` wide, not the rounded `w0 / f` of the scaled intrinsics.
+    let mut intrinsics = view.camera.intrinsics.scaled(1.0 / f as f64);
+    (intrinsics.width, intrinsics.height) = (w as u32, h as u32);
     let camera = Camera {
-        intrinsics: view.camera.intrinsics.scaled(1.0 / f as f64),
+        intrinsics,
         ..view.camera
     };
     if supervision == Supervision::FullImage {
@@ -289,6 +293,31 @@ mod tests {
         assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
         assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
+    }
+
+    #[test]
+    fn a_factor_that_does_not_divide_the_image_gives_a_camera_of_the_image_size() {
+        let k = trand_core::Intrinsics::centered(10.0, 8, 5);
+        let cam = Camera::look_at(
+            k,
+            glam::DVec3::new(0.0, 0.0, 1.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+        );
+        let view = View {
+            name: "v".into(),
+            frame: 0,
+            camera: cam,
+            rgb: trand_io::Image::from_vec(8, 5, 3, vec![128; 120]),
+            instance: trand_io::Image::from_vec(8, 5, 1, vec![3; 40]),
+            depth: None,
+        };
+        // 8 / 3 rounds to 3 but two blocks fit; 5 / 3 rounds to 2 but one block fits.
+        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 3).unwrap();
+        assert_eq!((t.width, t.height), (2, 1));
+        let k = &t.camera.intrinsics;
+        assert_eq!((k.width, k.height), (2, 1));
+        assert_eq!(t.labels.len(), k.num_pixels());
     }
 
     #[test]
