@@ -278,19 +278,7 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         .iter()
         .filter_map(|v| v.rgb.as_ref().map(|i| (i.width, i.height)))
         .fold((u32::MAX, u32::MAX), |a, b| (a.0.min(b.0), a.1.min(b.1)));
-    let coarse = opts
-        .train
-        .resolution
-        .coarse_levels(opts.downsample)
-        .into_iter()
-        .filter_map(|level| {
-            let f = level.factor_for(opts.downsample, native.0, native.1)?;
-            Some(build_at(f).map(|views| CoarseViews {
-                factor: level.factor,
-                views,
-            }))
-        })
-        .collect::<Result<Vec<_>>>()?;
+    let coarse = targets::coarse_views(&opts.train.resolution, opts.downsample, native, build_at)?;
     Ok(TrainViews {
         views,
         coarse,

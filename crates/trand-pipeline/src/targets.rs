@@ -52,6 +52,28 @@ pub struct CoarseViews {
     pub views: Vec<TrainView>,
 }
 
+/// The views of every level of `schedule` coarser than the training downsampling, for native images of
+/// `width × height`: `build_at(factor)` builds the views at a factor (see
+/// [`trand_train::config::ResolutionLevel::factor_for`]).
+pub fn coarse_views(
+    schedule: &trand_train::config::ResolutionSchedule,
+    downsample: u32,
+    (width, height): (u32, u32),
+    build_at: impl Fn(u32) -> Result<Vec<TrainView>>,
+) -> Result<Vec<CoarseViews>> {
+    schedule
+        .coarse_levels(downsample)
+        .into_iter()
+        .filter_map(|level| {
+            let f = level.factor_for(downsample, width, height)?;
+            Some(build_at(f).map(|views| CoarseViews {
+                factor: level.factor,
+                views,
+            }))
+        })
+        .collect()
+}
+
 /// Colour of object channel `c` in the colour-coded mask: evenly spaced hues, full saturation, so that
 /// any two objects differ in at least one channel by ≥ 0.5. Channel 0 (background) is black.
 pub fn palette(c: usize) -> [f32; 3] {
@@ -266,23 +288,28 @@ mod tests {
         assert_eq!(palette(0), [0.0; 3]);
     }
 
-    #[test]
-    fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
-        let k = trand_core::Intrinsics::centered(10.0, 4, 2);
-        let cam = Camera::look_at(
+    /// A `w × h` view of grey pixels with the given instance ids, seen from 1 m.
+    fn grey_view(w: u32, h: u32, ids: Vec<u16>) -> View {
+        let k = trand_core::Intrinsics::centered(10.0, w, h);
+        let camera = Camera::look_at(
             k,
             glam::DVec3::new(0.0, 0.0, 1.0),
             glam::DVec3::ZERO,
             glam::DVec3::Y,
         );
-        let view = View {
+        View {
             name: "v".into(),
             frame: 0,
-            camera: cam,
-            rgb: trand_io::Image::from_vec(4, 2, 3, vec![128; 24]),
-            instance: trand_io::Image::from_vec(4, 2, 1, vec![0, 0, 3, 3, 0, 0, 3, 3]),
+            camera,
+            rgb: trand_io::Image::from_vec(w, h, 3, vec![128; (w * h * 3) as usize]),
+            instance: trand_io::Image::from_vec(w, h, 1, ids),
             depth: None,
-        };
+        }
+    }
+
+    #[test]
+    fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
+        let view = grey_view(4, 2, vec![0, 0, 3, 3, 0, 0, 3, 3]);
         let t =
             build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
@@ -297,21 +324,7 @@ mod tests {
 
     #[test]
     fn a_factor_that_does_not_divide_the_image_gives_a_camera_of_the_image_size() {
-        let k = trand_core::Intrinsics::centered(10.0, 8, 5);
-        let cam = Camera::look_at(
-            k,
-            glam::DVec3::new(0.0, 0.0, 1.0),
-            glam::DVec3::ZERO,
-            glam::DVec3::Y,
-        );
-        let view = View {
-            name: "v".into(),
-            frame: 0,
-            camera: cam,
-            rgb: trand_io::Image::from_vec(8, 5, 3, vec![128; 120]),
-            instance: trand_io::Image::from_vec(8, 5, 1, vec![3; 40]),
-            depth: None,
-        };
+        let view = grey_view(8, 5, vec![3; 40]);
         // 8 / 3 rounds to 3 but two blocks fit; 5 / 3 rounds to 2 but one block fits.
         let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 3).unwrap();
         assert_eq!((t.width, t.height), (2, 1));

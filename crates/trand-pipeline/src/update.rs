@@ -282,20 +282,9 @@ pub fn update_with_cancel(
             )
         };
         let views = [build(ds)?];
-        let (w, h) = view.rgb.as_ref().map_or((0, 0), |i| (i.width, i.height));
-        let coarse = opts
-            .train
-            .resolution
-            .coarse_levels(ds)
-            .into_iter()
-            .filter_map(|level| {
-                let f = level.factor_for(ds, w, h)?;
-                Some(build(f).map(|v| targets::CoarseViews {
-                    factor: level.factor,
-                    views: vec![v],
-                }))
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let native = view.rgb.as_ref().map_or((0, 0), |i| (i.width, i.height));
+        let coarse =
+            targets::coarse_views(&opts.train.resolution, ds, native, |f| Ok(vec![build(f)?]))?;
         let mut trainer = Trainer::new(
             surfels,
             opts.train.clone(),
