@@ -307,6 +307,7 @@ fn checkpoint_reader_survives_arbitrary_and_mutated_files() {
         stats: &stats,
         rng: &rng,
         stack: &[1, 0],
+        poses: &trand_train::PoseCorrections::new(2),
         curve: &[(1, 0.5)],
         initial_surfels: 3,
         fingerprint: "abc",

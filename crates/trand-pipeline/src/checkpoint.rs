@@ -31,10 +31,10 @@ use trand_core::Surfels;
 use trand_io::IoError;
 use trand_io::ply::{surfels_from_ply_bytes, surfels_to_ply_bytes};
 use trand_train::optim::AdamParams;
-use trand_train::{Adam, DensifyStats};
+use trand_train::{Adam, DensifyStats, PoseCorrections};
 
 const MAGIC: &[u8] = b"TRAND-CHECKPOINT\n";
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 const SECTIONS: [&str; 6] = [
     "surfels",
     "adam_m",
@@ -54,6 +54,8 @@ pub struct Snapshot<'a> {
     pub rng: &'a Pcg64,
     /// Views left in the sampler's current epoch.
     pub stack: &'a [usize],
+    /// The training views' pose corrections and their optimiser state.
+    pub poses: &'a PoseCorrections,
     pub curve: &'a [(u32, f32)],
     pub initial_surfels: usize,
     /// Fingerprint of the training views ([`crate::reconstruct::training_fingerprint`]).
@@ -71,6 +73,7 @@ pub struct Checkpoint {
     pub stats: DensifyStats,
     pub rng: Pcg64,
     pub stack: Vec<usize>,
+    pub poses: PoseCorrections,
     pub curve: Vec<(u32, f32)>,
     pub initial_surfels: usize,
     pub fingerprint: String,
@@ -88,6 +91,7 @@ struct Header {
     adam_steps: [u64; 9],
     rng: Pcg64,
     stack: Vec<usize>,
+    poses: PoseCorrections,
     /// `(iteration, loss bits)`: bits, so the curve comes back exactly.
     curve: Vec<(u32, u32)>,
     initial_surfels: usize,
@@ -123,6 +127,7 @@ impl Snapshot<'_> {
             adam_steps: self.adam.steps,
             rng: self.rng.clone(),
             stack: self.stack.to_vec(),
+            poses: self.poses.clone(),
             curve: self.curve.iter().map(|&(i, l)| (i, l.to_bits())).collect(),
             initial_surfels: self.initial_surfels,
             sections: sections.iter().map(|s| s.len() as u64).collect(),
@@ -274,6 +279,7 @@ impl Checkpoint {
             stats,
             rng: h.rng,
             stack: h.stack,
+            poses: h.poses,
             curve: h
                 .curve
                 .into_iter()
@@ -300,6 +306,7 @@ impl Checkpoint {
             stats: &self.stats,
             rng: &self.rng,
             stack: &self.stack,
+            poses: &self.poses,
             curve: &self.curve,
             initial_surfels: self.initial_surfels,
             fingerprint: &self.fingerprint,
@@ -341,6 +348,11 @@ mod tests {
             surfels: s,
             rng: Pcg64::seed_from_u64(99),
             stack: vec![2, 0],
+            poses: {
+                let mut p = PoseCorrections::new(3);
+                p.xi[1] = [1e-3, -2e-4, 3.5e-5, 1e-3, 0.0, -7e-4];
+                p
+            },
             curve: vec![(1, 0.75), (2, f32::from_bits(0x3e99_999a))],
             initial_surfels: 4,
             fingerprint: "00ff".into(),
@@ -359,6 +371,7 @@ mod tests {
         assert_eq!(d.rng, c.rng);
         assert_eq!(d.stats.denom, c.stats.denom);
         assert_eq!(d.curve, c.curve);
+        assert_eq!(d.poses, c.poses);
     }
 
     #[test]

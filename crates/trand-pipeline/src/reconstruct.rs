@@ -184,6 +184,28 @@ pub struct Reconstruction {
     pub support_applied: bool,
     /// How the training masks' ids were taken.
     pub identity: IdentityReport,
+    /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
+    pub poses: trand_train::PoseCorrections,
+}
+
+impl Reconstruction {
+    /// Per training view: name, the correction's rotation (degrees) and translation (millimetres).
+    pub fn pose_report(&self) -> Vec<serde_json::Value> {
+        self.train_views
+            .iter()
+            .zip(self.poses.magnitudes())
+            .zip(&self.poses.xi)
+            .map(|((name, (deg, mm)), xi)| {
+                serde_json::json!({
+                    "view": name,
+                    "rotation_deg": deg,
+                    "translation_mm": mm,
+                    "omega_rad": &xi[..3],
+                    "delta_m": &xi[3..],
+                })
+            })
+            .collect()
+    }
 }
 
 /// The identity rule a reconstruction used, and the association when one was computed.
@@ -335,6 +357,21 @@ pub fn find_openings(
     Ok(crate::openings::classify(&hull, &cams, b.max[2]))
 }
 
+/// The training views with their settled pose corrections, `None` before the corrections settled.
+fn settled_views(views: &[TrainView], poses: &trand_train::PoseCorrections) -> Option<Vec<TrainView>> {
+    poses.settled.as_ref()?;
+    Some(
+        views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| TrainView {
+                camera: poses.settled_camera(i, &v.camera).expect("settled"),
+                ..v.clone()
+            })
+            .collect(),
+    )
+}
+
 /// Removes the surfels inside any opening, with their optimiser state.
 fn carve(trainer: &mut Trainer<'_>, openings: &[Opening]) {
     if openings.is_empty() {
@@ -364,13 +401,20 @@ fn visual_hull_points(
 ) -> Result<Vec<[f32; 3]>> {
     let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
+    let covered: Vec<Vec<bool>> = views
+        .iter()
+        .map(|v| {
+            let on: Vec<bool> = v.ids.iter().map(|&i| i != 0).collect();
+            dilate(&on, v.width, v.height, cfg.hull_margin_px as usize)
+        })
+        .collect();
     let inside = |p: [f32; 3]| {
         let q = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         if support.is_some_and(|s| !s.holds(q)) {
             return false;
         }
         let mut seen = 0;
-        for v in views {
+        for (v, covered) in views.iter().zip(&covered) {
             let Some((x, y, _)) =
                 v.camera
                     .project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
@@ -381,7 +425,7 @@ fn visual_hull_points(
             if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
                 continue;
             }
-            if v.ids[yi as usize * v.width + xi as usize] == 0 {
+            if !covered[yi as usize * v.width + xi as usize] {
                 return false;
             }
             seen += 1;
@@ -406,6 +450,26 @@ fn visual_hull_points(
         ));
     }
     Ok(kept)
+}
+
+/// `on` (row-major `w × h`) dilated by a `(2r + 1)²` square: separable, a row pass then a column pass.
+fn dilate(on: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    if r == 0 {
+        return on.to_vec();
+    }
+    let pass = |src: &[bool], stride: usize, step: usize, lines: usize, len: usize| {
+        let mut out = vec![false; src.len()];
+        for l in 0..lines {
+            let at = |k: usize| l * stride + k * step;
+            for k in 0..len {
+                let (lo, hi) = (k.saturating_sub(r), (k + r).min(len - 1));
+                out[at(k)] = (lo..=hi).any(|j| src[at(j)]);
+            }
+        }
+        out
+    };
+    let rows = pass(on, w, 1, h, w);
+    pass(&rows, 1, w, w, h)
 }
 
 /// The support prior's test for these views, when [`ReconstructOptions::support`] applies to them.
@@ -576,6 +640,9 @@ fn check_resume(
             ));
         }
     }
+    c.poses
+        .validate(num_views)
+        .map_err(|e| PipelineError::Invalid(format!("checkpoint refused: {e}")))?;
     for m in [&c.adam.m, &c.adam.v] {
         m.validate().map_err(|e| {
             PipelineError::Invalid(format!("checkpoint refused: Adam moments: {e}"))
@@ -602,7 +669,7 @@ pub fn reconstruct_from(
         channels,
         identity,
     } = train_views(seq, opts)?;
-    let (openings, vessel_tops) = find_openings(&views, opts)?;
+    let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {
         cfg.object_loss.active = Activation::Never;
@@ -624,7 +691,15 @@ pub fn reconstruct_from(
             (
                 c.surfels,
                 c.iteration + 1,
-                Some((c.adam, c.stats, c.rng, c.stack, c.curve, c.initial_surfels)),
+                Some((
+                    c.adam,
+                    c.stats,
+                    c.rng,
+                    c.stack,
+                    c.poses,
+                    c.curve,
+                    c.initial_surfels,
+                )),
             )
         }
     };
@@ -645,8 +720,12 @@ pub fn reconstruct_from(
         Trainer::new(surfels, cfg, &views, extent, opts.method.supervision()).with_coarse(&coarse);
     let mut curve = Vec::new();
     match resume {
-        Some((adam, stats, rng, stack, c, init)) => {
+        Some((adam, stats, rng, stack, poses, c, init)) => {
             trainer.restore(adam, stats, rng, stack);
+            trainer.poses = poses;
+            if let Some(v) = settled_views(&views, &trainer.poses) {
+                (openings, vessel_tops) = find_openings(&v, opts)?;
+            }
             curve = c;
             initial = init;
         }
@@ -655,6 +734,13 @@ pub fn reconstruct_from(
     for it in first..=last {
         let rep = trainer.step(it, it == last)?;
         if rep.densified {
+            // The opening prior was decided from the given poses; once the corrections settle it is
+            // decided again from the corrected ones (half a degree off, the hull loses the rims).
+            if trainer.poses.settled.is_none() && trainer.cfg.pose.settled(it) {
+                trainer.poses.settle();
+                let v = settled_views(&views, &trainer.poses).expect("the poses just settled");
+                (openings, vessel_tops) = find_openings(&v, opts)?;
+            }
             carve(&mut trainer, &openings);
         }
         curve.push((it, rep.loss));
@@ -666,6 +752,7 @@ pub fn reconstruct_from(
             stats: &trainer.stats,
             rng,
             stack,
+            poses: &trainer.poses,
             curve: &curve,
             initial_surfels: initial,
             fingerprint: &fingerprint,
@@ -680,6 +767,7 @@ pub fn reconstruct_from(
         }
     }
     let optimise_s = t1.elapsed().as_secs_f64();
+    let poses = trainer.poses;
     let mut surfels = trainer.surfels;
     let num_trained = surfels.len();
     if opts.method.supervision() == Supervision::ObjectAware {
@@ -698,5 +786,34 @@ pub fn reconstruct_from(
         vessel_tops,
         identity,
         support_applied,
+        poses,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::dilate;
+
+    /// Brute force: a pixel is on when some on pixel lies within `r` in both coordinates.
+    fn dilate_reference(on: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as i64, (i / w) as i64);
+                (0..w * h).any(|j| {
+                    let (u, v) = ((j % w) as i64, (j / w) as i64);
+                    on[j] && (u - x).abs() <= r as i64 && (v - y).abs() <= r as i64
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn separable_dilation_equals_the_square_window_by_brute_force() {
+        let (w, h) = (13, 9);
+        let on: Vec<bool> = (0..w * h).map(|i| (i * 7919 + 13) % 23 == 0).collect();
+        for r in 0..4 {
+            assert_eq!(dilate(&on, w, h, r), dilate_reference(&on, w, h, r), "r = {r}");
+        }
+        assert!(dilate(&on, w, h, 2).iter().filter(|&&b| b).count() > on.iter().filter(|&&b| b).count());
+    }
 }

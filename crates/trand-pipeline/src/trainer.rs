@@ -21,7 +21,7 @@ use trand_train::config::TrainConfig;
 use trand_train::losses::{
     dice::dice_from_sums, geometry, object::object_aware_loss, photometric::photometric,
 };
-use trand_train::{Adam, DensifyStats, densify_and_prune, reset_opacity};
+use trand_train::{Adam, DensifyStats, PoseCorrections, densify_and_prune, reset_opacity};
 
 use crate::Result;
 use crate::targets::{CoarseViews, Supervision, TrainView};
@@ -54,6 +54,8 @@ pub struct Trainer<'a> {
     /// Extent that scales the position learning rate.
     pub lr_extent: f64,
     pub supervision: Supervision,
+    /// Each training view's pose correction (`cfg.pose`); zero while the poses are fixed.
+    pub poses: PoseCorrections,
     rng: Pcg64,
     stack: Vec<usize>,
 }
@@ -90,6 +92,7 @@ impl<'a> Trainer<'a> {
             views,
             coarse: &[],
             supervision,
+            poses: PoseCorrections::new(views.len()),
             rng,
             stack: Vec::new(),
         }
@@ -139,6 +142,7 @@ impl<'a> Trainer<'a> {
     pub fn step(&mut self, it: u32, last: bool) -> Result<StepReport> {
         let vi = self.next_view();
         let view = self.view_at(it, vi);
+        let camera = self.poses.camera(vi, &view.camera);
         let cfg = &self.cfg;
         let k = self.surfels.num_objects;
         let object_aware = self.supervision == Supervision::ObjectAware;
@@ -166,12 +170,12 @@ impl<'a> Trainer<'a> {
                 if object_aware {
                     render_object_sums::<f32, _>(
                         &self.surfels,
-                        &view.camera,
+                        &camera,
                         &settings,
                         &view.labels,
                     )
                 } else {
-                    render::<f32, _>(&self.surfels, &view.camera, &settings)
+                    render::<f32, _>(&self.surfels, &camera, &settings)
                 }
             },
             || {
@@ -255,6 +259,11 @@ impl<'a> Trainer<'a> {
         }
 
         let grads = out.backward(&self.surfels, &g);
+        let last_it = cfg.start_iteration + cfg.iterations;
+        if let Some(rates) = cfg.pose.rates(it, last_it) {
+            let gc = grads.camera.map(f64::from);
+            self.poses.step(vi, &view.camera, gc, rates);
+        }
         let mut gs = grads.params.into_surfels(&self.surfels);
         if let Some(ol) = ol {
             let wgt = cfg.object_loss.weight as f32;

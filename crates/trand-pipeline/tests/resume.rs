@@ -9,6 +9,7 @@ use trand_io::{Sequence, read_sequence};
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{Reconstruction, Start, reconstruct_from};
 use trand_pipeline::{PipelineError, ReconstructOptions};
+use trand_train::PoseRefinement;
 use trand_train::config::{ResolutionLevel, ResolutionSchedule};
 
 fn tiny(seed: u64, dir: &Path) -> Sequence {
@@ -31,6 +32,15 @@ fn options() -> ReconstructOptions {
         min_side: 60,
         ..ResolutionLevel::new(2, 0.48)
     }]);
+    // Pose corrections stepped from 10 and settled at the densification of 80 (the openings are
+    // decided again then): the resumed runs below cross both.
+    o.train.pose = PoseRefinement::Refine {
+        from_iteration: 10,
+        settled_at: 80,
+        lr_rotation: 2e-4,
+        lr_translation: 2e-4,
+        final_ratio: 0.1,
+    };
     o
 }
 
@@ -102,6 +112,9 @@ fn resumed_run_equals_the_uninterrupted_run_bit_for_bit() {
     assert_eq!(resumed.curve, whole.curve);
     assert_eq!(resumed.num_trained, whole.num_trained);
     assert_eq!(resumed.initial_surfels, whole.initial_surfels);
+    assert_eq!(resumed.poses, whole.poses);
+    assert!(whole.poses.settled.is_some());
+    assert!(whole.poses.xi.iter().flatten().any(|&v| v != 0.0));
 }
 
 #[test]

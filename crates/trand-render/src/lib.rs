@@ -10,7 +10,8 @@
 //! 4. [`backward`]: per tile, back-to-front gradients into one record per (tile, surfel) pair.
 //! 5. reduction of the records per surfel in a fixed order (bit-identical for any thread count).
 //! 6. [`preprocess::preprocess_backward_one`]: chain rule to the raw parameters (quaternion
-//!    normalisation, SH view direction, exp/sigmoid/softmax activations).
+//!    normalisation, SH view direction, exp/sigmoid/softmax activations), and each surfel's share of
+//!    the camera-pose gradient ([`Gradients::camera`], summed in surfel order).
 //!
 //! The tile kernels (3, 4) run on eight-pixel lanes ([`lanes`]) and are compiled three times, for
 //! AVX-512, AVX2 and the baseline target, chosen at run time ([`simd`]); all give identical bits.

@@ -420,7 +420,8 @@ pub fn preprocess_retained<R: Real, P: SurfelParams<R>>(
 }
 
 /// Backward of [`preprocess_one`]: accumulates ∂L/∂(raw parameters) of surfel `proj.index` into `out`
-/// (which must hold that surfel's slot; all other slots are untouched).
+/// (which must hold that surfel's slot; all other slots are untouched) and returns this surfel's share
+/// of the camera gradient ([`camera_vjp`]).
 #[allow(clippy::too_many_arguments)]
 pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
     p: &P,
@@ -432,7 +433,7 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
     g: &ProjGrad<R>,
     dprobs: &[R],
     out: &mut SurfelGradSlot<'_, R>,
-) {
+) -> [R; 6] {
     let i = proj.index as usize;
     let (t_u, t_v, t_w) = (proj.t_u, proj.t_v, proj.t_w);
     let mut d_tu = [g.t[0], g.t[1], g.t[2]];
@@ -510,9 +511,26 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
         }
     }
     let gd = dot(g_dir, dir);
+    let d_mean_dir: [R; 3] = std::array::from_fn(|a| (g_dir[a] - gd * dir[a]) / dist);
     for a in 0..3 {
-        d_mean[a] += (g_dir[a] - gd * dir[a]) / dist;
+        d_mean[a] += d_mean_dir[a];
     }
+    let cols = [
+        cam.rotate(tu).map(|v| v * geo.scale[0]),
+        cam.rotate(tv).map(|v| v * geo.scale[1]),
+        {
+            let rm = cam.rotate(p.mean(i));
+            std::array::from_fn(|a| rm[a] + cam.trans[a])
+        },
+    ];
+    let d_cols = [0, 1, 2].map(|j| [dm0[j], dm1[j], dm2[j]]);
+    let camera = camera_vjp(
+        cam,
+        cols,
+        d_cols,
+        (proj.normal, g.normal),
+        d_mean_dir,
+    );
 
     let o = proj.opacity;
     for (m, d) in out.mean.iter_mut().zip(d_mean) {
@@ -530,6 +548,41 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
     for (o, d) in out.obj_logits.iter_mut().zip(dl.iter()) {
         *o += *d;
     }
+    camera
+}
+
+/// One surfel's share of `∂L/∂(ω, δ)`, the gradient with respect to a rigid motion applied in the camera
+/// frame, `x_c ↦ exp([ω]×) x_c + δ` (world-to-camera `R ↦ exp([ω]×) R`, `t ↦ exp([ω]×) t + δ`), at
+/// `ω = δ = 0`: what per-view pose refinement steps on.
+///
+/// The camera enters the preprocess through camera-frame vectors only: the columns `M_j` of
+/// `T = K·M` (`c_u`, `c_v`, `p_view`), the normal `n`, and the camera centre in the colours' view
+/// direction. Each vector rotates with `ω` (`∂(ω × v)` gives `v × ∂L/∂v`), `p_view` also moves with `δ`,
+/// and the centre moves by `−Rᵀδ`, so with `g_μ` the view direction's share of `∂L/∂μ`:
+/// `∂L/∂ω = Σ_j M_j × ∂L/∂M_j + n × ∂L/∂n`, `∂L/∂δ = ∂L/∂p_view + R·g_μ`.
+fn camera_vjp<R: Real>(
+    cam: &CamR<R>,
+    cols: [[R; 3]; 3],
+    d_cols: [[R; 3]; 3],
+    (normal, d_normal): ([R; 3], [R; 3]),
+    d_mean_dir: [R; 3],
+) -> [R; 6] {
+    let mut w = cross(&normal, &d_normal);
+    for (c, d) in cols.iter().zip(&d_cols) {
+        let x = cross(c, d);
+        for a in 0..3 {
+            w[a] += x[a];
+        }
+    }
+    let rg = cam.rotate(d_mean_dir);
+    [
+        w[0],
+        w[1],
+        w[2],
+        d_cols[2][0] + rg[0],
+        d_cols[2][1] + rg[1],
+        d_cols[2][2] + rg[2],
+    ]
 }
 
 /// Mutable view of one surfel's slot in a [`ParamsOf`] gradient buffer.

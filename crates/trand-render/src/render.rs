@@ -169,6 +169,9 @@ pub struct Gradients<R> {
     /// Per surfel: the 2DGS densification gradient `(∂L/∂T_{u,2}·z·W/2, ∂L/∂T_{v,2}·z·H/2)` (2DGS §3.4):
     /// the screen-space position gradient in NDC units, from the per-pixel kernel only.
     pub densify: Vec<[R; 2]>,
+    /// `∂L/∂(ω, δ)` of the camera: a rigid motion `x_c ↦ exp([ω]×) x_c + δ` in the camera frame
+    /// (see `preprocess::camera_vjp`), summed over the visible surfels in index order.
+    pub camera: [R; 6],
 }
 
 impl<R: Real> Rendered<R> {
@@ -301,11 +304,13 @@ impl<R: Real> Rendered<R> {
         let nc3 = trand_core::sh::num_coeffs(params.sh_degree()) * 3;
         let rs = 12 + 2 * nc3 + k;
         let mut recs = par_zeros(s.projs.len() * rs);
+        let mut cams = vec![[R::ZERO; 6]; s.projs.len()];
         recs.par_chunks_mut(rs)
+            .zip(cams.par_iter_mut())
             .zip(s.projs.par_iter())
             .enumerate()
             .with_min_len(64)
-            .for_each(|(j, (r, proj))| {
+            .for_each(|(j, ((r, cam_grad), proj))| {
                 let mut dprobs = [R::ZERO; MAX_OBJECTS];
                 let dprobs = &mut dprobs[..k];
                 let g = reduce_surfel(j, &s.bins, &pairs, k, dprobs);
@@ -326,7 +331,7 @@ impl<R: Real> Rendered<R> {
                     mask_sh,
                     obj_logits,
                 };
-                preprocess_backward_one(
+                *cam_grad = preprocess_backward_one(
                     params,
                     &s.cam,
                     sh_deg,
@@ -375,9 +380,16 @@ impl<R: Real> Rendered<R> {
                 msh.copy_from_slice(&r[12 + nc3..12 + 2 * nc3]);
                 obj.copy_from_slice(&r[12 + 2 * nc3..]);
             });
+        let camera = cams.iter().fold([R::ZERO; 6], |mut acc, c| {
+            for (a, v) in acc.iter_mut().zip(c) {
+                *a += *v;
+            }
+            acc
+        });
         Gradients {
             params: out,
             densify,
+            camera,
         }
     }
 }

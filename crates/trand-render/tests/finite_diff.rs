@@ -169,3 +169,95 @@ fn normal_gradients_match_finite_differences() {
 fn distortion_gradients_match_finite_differences() {
     check_map(Map::Distortion, 9);
 }
+
+/// The camera moved by the rigid motion `x_c ↦ exp([ω]×) x_c + δ` of its own frame.
+fn moved_camera(cam: &trand_core::Camera, w: [f64; 3], d: [f64; 3]) -> trand_core::Camera {
+    use glam::{DMat3, DVec3};
+    let wv = DVec3::from_array(w);
+    let rot = match wv.try_normalize() {
+        Some(axis) => DMat3::from_axis_angle(axis, wv.length()),
+        None => DMat3::IDENTITY,
+    };
+    trand_core::Camera::from_glam(
+        cam.intrinsics,
+        rot * cam.rotation(),
+        rot * cam.translation() + DVec3::from_array(d),
+    )
+}
+
+/// `Gradients::camera` against central differences of the loss under a rigid motion of the camera.
+fn check_camera(map: Map, seed: u64) {
+    let cam = common::test_camera(48, 40, 1.2);
+    let params = common::random_scene(16, 3, 3, 0.2, seed);
+    let settings = RenderSettings {
+        background: [0.2, 0.5, 0.7],
+        maps: Maps::All,
+        ..Default::default()
+    };
+    let out = render::<f64, _>(&params, &cam, &settings).unwrap();
+    let len = match map {
+        Map::Rgb | Map::Mask | Map::Normal | Map::Objects => 48 * 40 * 3,
+        _ => 48 * 40,
+    };
+    let cot = common::cotangent(len, seed + 200);
+    let analytic = out
+        .backward(&params, &grads_for(&out, map, cot.clone()))
+        .camera;
+    let sig = out.decision_signature();
+    let mut checked = 0;
+    for k in 0..6 {
+        let h = 1e-6;
+        let eval = |delta: f64| {
+            let mut v = [0.0; 6];
+            v[k] = delta;
+            let c = moved_camera(&cam, [v[0], v[1], v[2]], [v[3], v[4], v[5]]);
+            let o = render::<f64, _>(&params, &c, &settings).unwrap();
+            (loss(&o, map, &cot), o.decision_signature())
+        };
+        let ((lp, sp), (lm, sm)) = (eval(h), eval(-h));
+        if sp != sig || sm != sig {
+            continue;
+        }
+        checked += 1;
+        let fd = (lp - lm) / (2.0 * h);
+        let a = analytic[k];
+        assert!(
+            (fd - a).abs() <= 1e-6 + 1e-5 * fd.abs().max(a.abs()),
+            "{map:?}: camera component {k}: fd {fd:.9e} analytic {a:.9e}"
+        );
+    }
+    assert!(checked >= 5, "{map:?}: only {checked} of 6 camera components checked");
+    assert!(
+        analytic.iter().any(|v| v.abs() > 1e-6),
+        "{map:?}: camera gradient zero"
+    );
+}
+
+#[test]
+fn camera_gradient_through_rgb_matches_finite_differences() {
+    check_camera(Map::Rgb, 11);
+}
+#[test]
+fn camera_gradient_through_mask_matches_finite_differences() {
+    check_camera(Map::Mask, 12);
+}
+#[test]
+fn camera_gradient_through_objects_matches_finite_differences() {
+    check_camera(Map::Objects, 13);
+}
+#[test]
+fn camera_gradient_through_depth_matches_finite_differences() {
+    check_camera(Map::ExpectedDepth, 14);
+}
+#[test]
+fn camera_gradient_through_median_depth_matches_finite_differences() {
+    check_camera(Map::Median, 15);
+}
+#[test]
+fn camera_gradient_through_normals_matches_finite_differences() {
+    check_camera(Map::Normal, 16);
+}
+#[test]
+fn camera_gradient_through_distortion_matches_finite_differences() {
+    check_camera(Map::Distortion, 17);
+}

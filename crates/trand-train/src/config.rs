@@ -14,6 +14,7 @@ use trand_core::surfels::ParamGroup;
 
 use crate::losses::object::ObjectLossParams;
 use crate::optim::{AdamParams, GroupLr, LrSchedule, group_index};
+use crate::pose::PoseRefinement;
 
 /// More iterations than any run needs (the paper uses 1000); larger values are taken as a typo.
 pub const MAX_ITERATIONS: u32 = 10_000_000;
@@ -480,6 +481,8 @@ pub struct TrainConfig {
     /// Training resolution per iteration.
     pub resolution: ResolutionSchedule,
     pub early_stop: EarlyStop,
+    /// Whether the training cameras' poses are refined with the surfels ([`crate::pose`]).
+    pub pose: PoseRefinement,
     /// SH degree (0: the released code's effective degree, §10 row 10).
     pub sh_degree: u32,
     /// Rasterizer near plane (metres).
@@ -505,6 +508,7 @@ impl Default for TrainConfig {
                 ResolutionLevel::new(2, 0.7),
             ]),
             early_stop: EarlyStop::Never,
+            pose: PoseRefinement::refine(),
             sh_degree: 0,
             near: 0.2,
             background: [0.0; 3],
@@ -532,6 +536,8 @@ impl TrainConfig {
         c.densify.opacity_reset = Periodic::Never;
         c.object_loss.active = Activation::Never;
         c.resolution = ResolutionSchedule::Full;
+        // One new photograph: its pose is the gauge itself (crate::pose), nothing to refine against.
+        c.pose = PoseRefinement::Fixed;
         // Past the densification at 1050 and ten iterations to settle after it.
         c.early_stop = EarlyStop::Plateau {
             window: 10,
@@ -615,6 +621,21 @@ impl TrainConfig {
         }
         if let Err(m) = self.resolution.validate() {
             return bad(m);
+        }
+        if let PoseRefinement::Refine {
+            lr_rotation,
+            lr_translation,
+            final_ratio,
+            ..
+        } = self.pose
+        {
+            let ok = |v: f64| v.is_finite() && v >= 0.0;
+            if !(ok(lr_rotation) && ok(lr_translation) && ok(final_ratio) && final_ratio > 0.0) {
+                return bad(format!(
+                    "pose.refine: lr_rotation = {lr_rotation}, lr_translation = {lr_translation}, \
+                     final_ratio = {final_ratio}: learning rates must be ≥ 0 and the ratio > 0"
+                ));
+            }
         }
         if !(self.near.is_finite() && self.near > 0.0) {
             return bad(format!("near = {}: must be positive", self.near));

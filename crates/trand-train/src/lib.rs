@@ -6,6 +6,7 @@
 //! * [`config`]: [`TrainConfig`], TRAN-D's hyper-parameters (t = 0 default, [`TrainConfig::t1`]), TOML.
 //! * [`densify`]: clone / split / prune and opacity reset, keeping Adam's moments aligned.
 //! * [`init`]: TRAN-D's random slab initialisation.
+//! * [`pose`]: per-view pose refinement (a rigid correction of each training camera).
 //!
 //! # Wiring one iteration (TRAN-D / 2DGS order, reference notes §2.2, §2.5)
 //!
@@ -27,10 +28,12 @@ pub mod densify;
 pub mod init;
 pub mod losses;
 pub mod optim;
+pub mod pose;
 
 pub use config::TrainConfig;
 pub use densify::{DensifyReport, DensifyStats, densify_and_prune, reset_opacity};
 pub use optim::{Adam, AdamParams, GroupLr, LrSchedule};
+pub use pose::{PoseCorrections, PoseRefinement};
 
 #[cfg(test)]
 mod testutil;

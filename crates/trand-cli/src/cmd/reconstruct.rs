@@ -329,6 +329,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "support_prior",
             serde_json::json!({ "mode": opts.support, "applied": rec.support_applied }),
         )
+        .detail(
+            "pose_refinement",
+            serde_json::json!({
+                "mode": opts.train.pose,
+                "openings_from": if rec.poses.settled.is_some() { "settled poses" } else { "given poses" },
+                "views": rec.pose_report(),
+            }),
+        )
         .detail("initial_surfels", rec.initial_surfels)
         .detail("num_trained", rec.num_trained);
     let config = toml::to_string(&opts).context("serialising the configuration")?;
