@@ -358,7 +358,10 @@ pub fn find_openings(
 }
 
 /// The training views with their settled pose corrections, `None` before the corrections settled.
-fn settled_views(views: &[TrainView], poses: &trand_train::PoseCorrections) -> Option<Vec<TrainView>> {
+fn settled_views(
+    views: &[TrainView],
+    poses: &trand_train::PoseCorrections,
+) -> Option<Vec<TrainView>> {
     poses.settled.as_ref()?;
     Some(
         views
@@ -401,20 +404,13 @@ fn visual_hull_points(
 ) -> Result<Vec<[f32; 3]>> {
     let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
-    let covered: Vec<Vec<bool>> = views
-        .iter()
-        .map(|v| {
-            let on: Vec<bool> = v.ids.iter().map(|&i| i != 0).collect();
-            dilate(&on, v.width, v.height, cfg.hull_margin_px as usize)
-        })
-        .collect();
     let inside = |p: [f32; 3]| {
         let q = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         if support.is_some_and(|s| !s.holds(q)) {
             return false;
         }
         let mut seen = 0;
-        for (v, covered) in views.iter().zip(&covered) {
+        for v in views {
             let Some((x, y, _)) =
                 v.camera
                     .project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
@@ -425,7 +421,7 @@ fn visual_hull_points(
             if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
                 continue;
             }
-            if !covered[yi as usize * v.width + xi as usize] {
+            if v.ids[yi as usize * v.width + xi as usize] == 0 {
                 return false;
             }
             seen += 1;
@@ -450,26 +446,6 @@ fn visual_hull_points(
         ));
     }
     Ok(kept)
-}
-
-/// `on` (row-major `w × h`) dilated by a `(2r + 1)²` square: separable, a row pass then a column pass.
-fn dilate(on: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    if r == 0 {
-        return on.to_vec();
-    }
-    let pass = |src: &[bool], stride: usize, step: usize, lines: usize, len: usize| {
-        let mut out = vec![false; src.len()];
-        for l in 0..lines {
-            let at = |k: usize| l * stride + k * step;
-            for k in 0..len {
-                let (lo, hi) = (k.saturating_sub(r), (k + r).min(len - 1));
-                out[at(k)] = (lo..=hi).any(|j| src[at(j)]);
-            }
-        }
-        out
-    };
-    let rows = pass(on, w, 1, h, w);
-    pass(&rows, 1, w, w, h)
 }
 
 /// The support prior's test for these views, when [`ReconstructOptions::support`] applies to them.
@@ -788,32 +764,4 @@ pub fn reconstruct_from(
         support_applied,
         poses,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::dilate;
-
-    /// Brute force: a pixel is on when some on pixel lies within `r` in both coordinates.
-    fn dilate_reference(on: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-        (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as i64, (i / w) as i64);
-                (0..w * h).any(|j| {
-                    let (u, v) = ((j % w) as i64, (j / w) as i64);
-                    on[j] && (u - x).abs() <= r as i64 && (v - y).abs() <= r as i64
-                })
-            })
-            .collect()
-    }
-
-    #[test]
-    fn separable_dilation_equals_the_square_window_by_brute_force() {
-        let (w, h) = (13, 9);
-        let on: Vec<bool> = (0..w * h).map(|i| (i * 7919 + 13) % 23 == 0).collect();
-        for r in 0..4 {
-            assert_eq!(dilate(&on, w, h, r), dilate_reference(&on, w, h, r), "r = {r}");
-        }
-        assert!(dilate(&on, w, h, 2).iter().filter(|&&b| b).count() > on.iter().filter(|&&b| b).count());
-    }
 }

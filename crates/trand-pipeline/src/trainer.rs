@@ -168,12 +168,7 @@ impl<'a> Trainer<'a> {
         let (out, ol) = rayon::join(
             || {
                 if object_aware {
-                    render_object_sums::<f32, _>(
-                        &self.surfels,
-                        &camera,
-                        &settings,
-                        &view.labels,
-                    )
+                    render_object_sums::<f32, _>(&self.surfels, &camera, &settings, &view.labels)
                 } else {
                     render::<f32, _>(&self.surfels, &camera, &settings)
                 }

@@ -524,13 +524,7 @@ pub fn preprocess_backward_one<R: Real, P: SurfelParams<R>>(
         },
     ];
     let d_cols = [0, 1, 2].map(|j| [dm0[j], dm1[j], dm2[j]]);
-    let camera = camera_vjp(
-        cam,
-        cols,
-        d_cols,
-        (proj.normal, g.normal),
-        d_mean_dir,
-    );
+    let camera = camera_vjp(cam, cols, d_cols, (proj.normal, g.normal), d_mean_dir);
 
     let o = proj.opacity;
     for (m, d) in out.mean.iter_mut().zip(d_mean) {

@@ -226,7 +226,10 @@ fn check_camera(map: Map, seed: u64) {
             "{map:?}: camera component {k}: fd {fd:.9e} analytic {a:.9e}"
         );
     }
-    assert!(checked >= 5, "{map:?}: only {checked} of 6 camera components checked");
+    assert!(
+        checked >= 5,
+        "{map:?}: only {checked} of 6 camera components checked"
+    );
     assert!(
         analytic.iter().any(|v| v.abs() > 1e-6),
         "{map:?}: camera gradient zero"

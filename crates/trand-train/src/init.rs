@@ -130,11 +130,6 @@ pub struct InitConfig {
     pub opacity: f32,
     /// Initial grey level of colour and mask colour (TRAN-D: uint8 127).
     pub grey: f32,
-    /// Visual-hull carving keeps a point whose projection lies within this many pixels (training
-    /// resolution, square window) of a view's mask: a segmenter's boundary a pixel or two inside the
-    /// object, or a pose a fraction of a degree off, must not carve away a rim the other views see.
-    /// Training trims what the margin adds.
-    pub hull_margin_px: u32,
     pub seed: u64,
 }
 
@@ -149,7 +144,6 @@ impl Default for InitConfig {
             },
             opacity: 0.1,
             grey: 127.0 / 255.0,
-            hull_margin_px: 0,
             seed: 0,
         }
     }

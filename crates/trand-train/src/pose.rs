@@ -124,7 +124,11 @@ impl PoseCorrections {
             return Err(format!("pose corrections for {lens:?} views, expected {n}"));
         }
         let finite = |a: &[[f64; 6]]| a.iter().flatten().all(|v| v.is_finite());
-        if self.settled.as_ref().is_some_and(|s| s.len() != n || !finite(s)) {
+        if self
+            .settled
+            .as_ref()
+            .is_some_and(|s| s.len() != n || !finite(s))
+        {
             return Err(format!("settled pose corrections do not fit {n} views"));
         }
         if !(finite(&self.xi) && finite(&self.m) && finite(&self.v)) {
