@@ -184,6 +184,8 @@ pub struct Reconstruction {
     pub support_applied: bool,
     /// How the training masks' ids were taken.
     pub identity: IdentityReport,
+    /// The pose refinement the run used (fixed for a narrow baseline, whatever was asked for).
+    pub pose_refinement: trand_train::PoseRefinement,
     /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
     pub poses: trand_train::PoseCorrections,
 }
@@ -687,6 +689,11 @@ pub fn reconstruct_from(
     // resolution throughout (the real keypose capture's keypoints: within 0.77 cm, against 1.15 cm
     // with the coarse levels).
     let coarse = if support_applied { Vec::new() } else { coarse };
+    // For the same reason the poses stay as given there: a correction of a fraction of a pixel trades
+    // directly against that parallax (the keypose keypoints: 1.04 cm off with the poses refined).
+    if support_applied {
+        cfg.pose = trand_train::PoseRefinement::Fixed;
+    }
     let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let preprocess_s = t0.elapsed().as_secs_f64();
 
@@ -744,6 +751,7 @@ pub fn reconstruct_from(
     }
     let optimise_s = t1.elapsed().as_secs_f64();
     let poses = trainer.poses;
+    let pose_refinement = trainer.cfg.pose;
     let mut surfels = trainer.surfels;
     let num_trained = surfels.len();
     if opts.method.supervision() == Supervision::ObjectAware {
@@ -762,6 +770,7 @@ pub fn reconstruct_from(
         vessel_tops,
         identity,
         support_applied,
+        pose_refinement,
         poses,
     })
 }

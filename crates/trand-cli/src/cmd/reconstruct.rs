@@ -332,7 +332,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .detail(
             "pose_refinement",
             serde_json::json!({
-                "mode": opts.train.pose,
+                "mode": rec.pose_refinement,
                 "openings_from": if rec.poses.settled.is_some() { "settled poses" } else { "given poses" },
                 "views": rec.pose_report(),
             }),
