@@ -184,6 +184,8 @@ pub struct Reconstruction {
     pub support_applied: bool,
     /// How the training masks' ids were taken.
     pub identity: IdentityReport,
+    /// Whether the opening prior was decided again with the settled pose corrections.
+    pub openings_retaken: bool,
     /// The pose refinement the run used (fixed for a narrow baseline, whatever was asked for).
     pub pose_refinement: trand_train::PoseRefinement,
     /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
@@ -359,22 +361,47 @@ pub fn find_openings(
     Ok(crate::openings::classify(&hull, &cams, b.max[2]))
 }
 
-/// The training views with their settled pose corrections, `None` before the corrections settled.
+/// The training views with their settled pose corrections, when the corrections settled and move
+/// some view's picture of the objects (the corners and centre of the openings box) by more than a hull
+/// voxel: less cannot change the voxel hull the opening prior is decided on, so exact poses keep their
+/// first decision. `None` otherwise. A pure function of the settled corrections, so a resumed run
+/// decides alike.
 fn settled_views(
     views: &[TrainView],
     poses: &trand_train::PoseCorrections,
-) -> Option<Vec<TrainView>> {
-    poses.settled.as_ref()?;
-    Some(
-        views
+) -> Result<Option<Vec<TrainView>>> {
+    if poses.settled.is_none() {
+        return Ok(None);
+    }
+    let b = openings_box(views)?;
+    let pick = |k: usize, bit: usize| if k & bit != 0 { b.max } else { b.min };
+    let mut probes: Vec<glam::DVec3> = (0..8)
+        .map(|k| glam::DVec3::new(pick(k, 1)[0], pick(k, 2)[1], pick(k, 4)[2]))
+        .collect();
+    probes.push(glam::DVec3::from_array(b.min).midpoint(glam::DVec3::from_array(b.max)));
+    let corrected: Vec<TrainView> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| TrainView {
+            camera: poses.settled_camera(i, &v.camera).expect("settled"),
+            ..v.clone()
+        })
+        .collect();
+    let moved = views.iter().zip(&corrected).any(|(v, c)| {
+        probes
             .iter()
-            .enumerate()
-            .map(|(i, v)| TrainView {
-                camera: poses.settled_camera(i, &v.camera).expect("settled"),
-                ..v.clone()
-            })
-            .collect(),
-    )
+            .any(|&p| shift_m(&v.camera, &c.camera, p) > crate::openings::VOXEL_M)
+    });
+    Ok(moved.then_some(corrected))
+}
+
+/// How far `p`'s image moves from camera `a` to camera `b`, in metres at `p`'s depth (0 when either
+/// camera does not see it).
+fn shift_m(a: &trand_core::Camera, b: &trand_core::Camera, p: glam::DVec3) -> f64 {
+    match (a.project(p), b.project(p)) {
+        (Some(u), Some(w)) => (u.0 - w.0).hypot(u.1 - w.1) * u.2 / a.intrinsics.fx,
+        _ => 0.0,
+    }
 }
 
 /// Removes the surfels inside any opening, with their optimiser state.
@@ -702,12 +729,14 @@ pub fn reconstruct_from(
     let mut trainer =
         Trainer::new(surfels, cfg, &views, extent, opts.method.supervision()).with_coarse(&coarse);
     let mut curve = Vec::new();
+    let mut openings_retaken = false;
     match resume {
         Some((adam, stats, rng, stack, poses, c, init)) => {
             trainer.restore(adam, stats, rng, stack);
             trainer.poses = poses;
-            if let Some(v) = settled_views(&views, &trainer.poses) {
+            if let Some(v) = settled_views(&views, &trainer.poses)? {
                 (openings, vessel_tops) = find_openings(&v, opts)?;
+                openings_retaken = true;
             }
             curve = c;
             initial = init;
@@ -721,8 +750,10 @@ pub fn reconstruct_from(
             // decided again from the corrected ones (half a degree off, the hull loses the rims).
             if trainer.poses.settled.is_none() && trainer.cfg.pose.settled(it) {
                 trainer.poses.settle();
-                let v = settled_views(&views, &trainer.poses).expect("the poses just settled");
-                (openings, vessel_tops) = find_openings(&v, opts)?;
+                if let Some(v) = settled_views(&views, &trainer.poses)? {
+                    (openings, vessel_tops) = find_openings(&v, opts)?;
+                    openings_retaken = true;
+                }
             }
             carve(&mut trainer, &openings);
         }
@@ -770,6 +801,7 @@ pub fn reconstruct_from(
         vessel_tops,
         identity,
         support_applied,
+        openings_retaken,
         pose_refinement,
         poses,
     })

@@ -37,7 +37,8 @@ pub enum PoseRefinement {
     Refine {
         from_iteration: u32,
         /// From this iteration the corrections count as settled: what a run decides once from the
-        /// cameras before training (the opening prior) is decided again with the corrected ones.
+        /// cameras before training (the opening prior) is decided again with the corrected ones when
+        /// they moved the views by more than that decision resolves.
         settled_at: u32,
         /// Adam learning rate of the rotation vector (radians per step) at `from_iteration`.
         lr_rotation: f64,

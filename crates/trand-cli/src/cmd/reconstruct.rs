@@ -333,7 +333,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "pose_refinement",
             serde_json::json!({
                 "mode": rec.pose_refinement,
-                "openings_from": if rec.poses.settled.is_some() { "settled poses" } else { "given poses" },
+                "openings_from": if rec.openings_retaken { "settled poses" } else { "given poses" },
                 "views": rec.pose_report(),
             }),
         )
