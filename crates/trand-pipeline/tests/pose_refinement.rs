@@ -107,4 +107,8 @@ fn refined_cameras_reproject_closer_to_the_true_ones() {
         "reprojection error against the true cameras: {before:.2} px given, {after:.2} px refined"
     );
     assert!(rec.poses.settled.is_some());
+    assert!(
+        rec.openings_retaken,
+        "corrections of several pixels must retake the opening prior"
+    );
 }
