@@ -180,13 +180,12 @@ impl PoseCorrections {
         self.steps[view] += 1;
         let k = self.steps[view] as i32;
         let (c1, c2) = (1.0 - BETA1.powi(k), 1.0 - BETA2.powi(k));
-        for a in 0..6 {
-            let m = &mut self.m[view][a];
-            let v = &mut self.v[view][a];
-            *m = BETA1 * *m + (1.0 - BETA1) * g[a];
-            *v = BETA2 * *v + (1.0 - BETA2) * g[a] * g[a];
+        let (m, v, xi) = (&mut self.m[view], &mut self.v[view], &mut self.xi[view]);
+        for (a, &ga) in g.iter().enumerate() {
+            m[a] = BETA1 * m[a] + (1.0 - BETA1) * ga;
+            v[a] = BETA2 * v[a] + (1.0 - BETA2) * ga * ga;
             let lr = if a < 3 { lr_w } else { lr_d };
-            self.xi[view][a] -= lr * (*m / c1) / ((*v / c2).sqrt() + EPS);
+            xi[a] -= lr * (m[a] / c1) / ((v[a] / c2).sqrt() + EPS);
         }
         self.remove_gauge();
     }
