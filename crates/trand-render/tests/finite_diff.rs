@@ -71,7 +71,16 @@ fn flat_mut(p: &mut ParamsOf<f64>) -> Vec<(&'static str, &mut f64)> {
     v
 }
 
-fn check_map(map: Map, seed: u64) {
+/// A random 16-surfel scene seen by a 48×40 camera, its render and a random cotangent for `map`.
+struct Case {
+    cam: trand_core::Camera,
+    params: ParamsOf<f64>,
+    settings: RenderSettings,
+    out: Rendered<f64>,
+    cot: Vec<f64>,
+}
+
+fn case(map: Map, seed: u64, cot_seed: u64) -> Case {
     let cam = common::test_camera(48, 40, 1.2);
     let params = common::random_scene(16, 3, 3, 0.2, seed);
     let settings = RenderSettings {
@@ -81,11 +90,26 @@ fn check_map(map: Map, seed: u64) {
     };
     let out = render::<f64, _>(&params, &cam, &settings).unwrap();
     let len = match map {
-        Map::Rgb | Map::Mask | Map::Normal => 48 * 40 * 3,
-        Map::Objects => 48 * 40 * 3,
+        Map::Rgb | Map::Mask | Map::Normal | Map::Objects => 48 * 40 * 3,
         _ => 48 * 40,
     };
-    let cot = common::cotangent(len, seed + 100);
+    Case {
+        cam,
+        params,
+        settings,
+        out,
+        cot: common::cotangent(len, cot_seed),
+    }
+}
+
+fn check_map(map: Map, seed: u64) {
+    let Case {
+        cam,
+        params,
+        settings,
+        out,
+        cot,
+    } = case(map, seed, seed + 100);
     let analytic = out
         .backward(&params, &grads_for(&out, map, cot.clone()))
         .params;
@@ -187,19 +211,13 @@ fn moved_camera(cam: &trand_core::Camera, w: [f64; 3], d: [f64; 3]) -> trand_cor
 
 /// `Gradients::camera` against central differences of the loss under a rigid motion of the camera.
 fn check_camera(map: Map, seed: u64) {
-    let cam = common::test_camera(48, 40, 1.2);
-    let params = common::random_scene(16, 3, 3, 0.2, seed);
-    let settings = RenderSettings {
-        background: [0.2, 0.5, 0.7],
-        maps: Maps::All,
-        ..Default::default()
-    };
-    let out = render::<f64, _>(&params, &cam, &settings).unwrap();
-    let len = match map {
-        Map::Rgb | Map::Mask | Map::Normal | Map::Objects => 48 * 40 * 3,
-        _ => 48 * 40,
-    };
-    let cot = common::cotangent(len, seed + 200);
+    let Case {
+        cam,
+        params,
+        settings,
+        out,
+        cot,
+    } = case(map, seed, seed + 200);
     let analytic = out
         .backward(&params, &grads_for(&out, map, cot.clone()))
         .camera;
