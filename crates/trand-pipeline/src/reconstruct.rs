@@ -379,20 +379,27 @@ fn settled_views(
         .map(|k| glam::DVec3::new(pick(k, 1)[0], pick(k, 2)[1], pick(k, 4)[2]))
         .collect();
     probes.push(glam::DVec3::from_array(b.min).midpoint(glam::DVec3::from_array(b.max)));
-    let corrected: Vec<TrainView> = views
+    let cameras: Vec<trand_core::Camera> = views
         .iter()
         .enumerate()
-        .map(|(i, v)| TrainView {
-            camera: poses.settled_camera(i, &v.camera).expect("settled"),
-            ..v.clone()
-        })
+        .map(|(i, v)| poses.settled_camera(i, &v.camera).expect("settled"))
         .collect();
-    let moved = views.iter().zip(&corrected).any(|(v, c)| {
+    let moved = views.iter().zip(&cameras).any(|(v, c)| {
         probes
             .iter()
-            .any(|&p| shift_m(&v.camera, &c.camera, p) > crate::openings::VOXEL_M)
+            .any(|&p| shift_m(&v.camera, c, p) > crate::openings::VOXEL_M)
     });
-    Ok(moved.then_some(corrected))
+    // The views (images included) are copied only when the decision is retaken.
+    Ok(moved.then(|| {
+        views
+            .iter()
+            .zip(cameras)
+            .map(|(v, camera)| TrainView {
+                camera,
+                ..v.clone()
+            })
+            .collect()
+    }))
 }
 
 /// How far `p`'s image moves from camera `a` to camera `b`, in metres at `p`'s depth (0 when either
