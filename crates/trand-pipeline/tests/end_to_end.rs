@@ -2,6 +2,7 @@
 //! `trand-synth`, exact ground truth) and on the independent Blender sequences in `shared/data/blender`
 //! (ignored unless asked for with `--include-ignored`).
 
+mod common;
 #[path = "../../../testdata/shared_data.rs"]
 mod shared_data;
 
@@ -83,11 +84,8 @@ fn run(seq: &Sequence, iterations: u32, downsample: u32) -> (Metrics, Metrics, V
 #[test]
 fn tiny_synthetic_scene_is_reconstructed_and_updated_within_bounds() {
     let dir = trand_io::ScratchDir::new("e2e-tiny").expect("scratch dir");
-    let out = dir.path().join("seq");
     // Seed 1: removing the support drops the glass on it 5 cm without toppling.
-    let cfg = trand_synth::SynthConfig::new(trand_synth::Preset::Tiny, 1, &out);
-    trand_synth::generate(&cfg).expect("synth");
-    let seq = read_sequence(&out).expect("read synthetic sequence");
+    let seq = common::tiny(1, dir.path());
     let (m0, m1, removed) = run(&seq, 200, 1);
     println!(
         "tiny t0: MAE {:.4} <2.5cm {:.3}; t1: MAE {:.4} <2.5cm {:.3}",
@@ -110,14 +108,7 @@ fn tiny_synthetic_scene_is_reconstructed_and_updated_within_bounds() {
 #[test]
 fn a_toppled_glass_is_recovered_at_t1_by_silhouette_relocalisation() {
     let dir = trand_io::ScratchDir::new("e2e-topple").expect("scratch dir");
-    let out = dir.path().join("seq");
-    trand_synth::generate(&trand_synth::SynthConfig::new(
-        trand_synth::Preset::Tiny,
-        5,
-        &out,
-    ))
-    .expect("synth");
-    let seq = read_sequence(&out).expect("read synthetic sequence");
+    let seq = common::tiny(5, dir.path());
     let off = UpdateOptions {
         relocalise: Stage::Off,
         ..Default::default()
@@ -175,14 +166,7 @@ fn blender_sequences_beat_the_papers_rows_after_a_short_run() {
 #[test]
 fn same_seed_gives_bit_identical_surfels_for_one_and_two_threads() {
     let dir = trand_io::ScratchDir::new("e2e-det").expect("scratch dir");
-    let out = dir.path().join("seq");
-    trand_synth::generate(&trand_synth::SynthConfig::new(
-        trand_synth::Preset::Tiny,
-        2,
-        &out,
-    ))
-    .expect("synth");
-    let seq = read_sequence(&out).expect("read");
+    let seq = common::tiny(2, dir.path());
     let mut opts = ReconstructOptions::default();
     // Past the first densification (20) and opacity reset (100), with the object loss active (> 100).
     opts.train.iterations = 110;

@@ -3,11 +3,12 @@
 //! corrected cameras reproject the reconstructed object points closer to the true cameras than the
 //! given ones did (2.1 px → 1.2 px: images this small resolve little more).
 
+mod common;
+
 use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
 use trand_core::Camera;
-use trand_io::read_sequence;
 use trand_pipeline::ReconstructOptions;
 use trand_pipeline::reconstruct::{Start, reconstruct_from};
 use trand_train::config::ResolutionSchedule;
@@ -28,14 +29,7 @@ fn reprojection_px(a: &Camera, b: &Camera, pts: &[DVec3]) -> f64 {
 #[test]
 fn refined_cameras_reproject_closer_to_the_true_ones() {
     let dir = trand_io::ScratchDir::new("pose-refinement").expect("scratch");
-    let out = dir.path().join("seq");
-    trand_synth::generate(&trand_synth::SynthConfig::new(
-        trand_synth::Preset::Tiny,
-        5,
-        &out,
-    ))
-    .expect("synth");
-    let mut seq = read_sequence(&out).expect("read");
+    let mut seq = common::tiny(5, dir.path());
     let n = seq.train_t0.len();
     // Each view's world is moved by ξ_p (3° about its own axis, 1 cm along its own direction): the
     // correction that undoes it is −ξ_p to first order, up to the mean (the gauge).

@@ -2,26 +2,18 @@
 //! checkpoint gives the same bits as the uninterrupted run, and a checkpoint of another sequence or
 //! other options is refused (regression tests of issue 21).
 
+mod common;
+
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use trand_io::{Sequence, read_sequence};
+use common::tiny;
+use trand_io::Sequence;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::reconstruct::{Reconstruction, Start, reconstruct_from};
 use trand_pipeline::{PipelineError, ReconstructOptions};
 use trand_train::PoseRefinement;
 use trand_train::config::{ResolutionLevel, ResolutionSchedule};
-
-fn tiny(seed: u64, dir: &Path) -> Sequence {
-    let out = dir.join(format!("seq{seed}"));
-    trand_synth::generate(&trand_synth::SynthConfig::new(
-        trand_synth::Preset::Tiny,
-        seed,
-        &out,
-    ))
-    .expect("synth");
-    read_sequence(&out).expect("read")
-}
 
 fn options() -> ReconstructOptions {
     let mut o = ReconstructOptions::default();

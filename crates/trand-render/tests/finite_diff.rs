@@ -196,12 +196,8 @@ fn distortion_gradients_match_finite_differences() {
 
 /// The camera moved by the rigid motion `x_c ↦ exp([ω]×) x_c + δ` of its own frame.
 fn moved_camera(cam: &trand_core::Camera, w: [f64; 3], d: [f64; 3]) -> trand_core::Camera {
-    use glam::{DMat3, DVec3};
-    let wv = DVec3::from_array(w);
-    let rot = match wv.try_normalize() {
-        Some(axis) => DMat3::from_axis_angle(axis, wv.length()),
-        None => DMat3::IDENTITY,
-    };
+    use glam::{DMat3, DQuat, DVec3};
+    let rot = DMat3::from_quat(DQuat::from_scaled_axis(DVec3::from_array(w)));
     trand_core::Camera::from_glam(
         cam.intrinsics,
         rot * cam.rotation(),
