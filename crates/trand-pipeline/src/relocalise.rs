@@ -20,7 +20,8 @@
 //! physically plausible by quasi-static settling on the table and the other objects ([`support`]),
 //! and fitted to the mask; the simulated pose settled the same way; the best of each distinct resting
 //! mode and the settled simulated one refined locally (position, yaw, tilt), every pose dropped onto
-//! its support; the best of these polished on its rendered score. An object rests on its *body*
+//! its support; the best of these polished on its rendered score among poses at rest (every move
+//! settled, so a standing glass is not left tipped on its base edge). An object rests on its *body*
 //! ([`mod@body`]): the surfels that reached into another object's space at t = 0 do not count.
 //!
 //! # The score

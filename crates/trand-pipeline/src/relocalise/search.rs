@@ -13,7 +13,12 @@
 //!   improves), every move dropped onto the support, on the cheap objective; then settled and searched
 //!   once more over `(x, y, yaw)`.
 //! * **Polish** of the best finalist: the same pattern search with smaller steps ([`POLISH_STEPS`]) on
-//!   the rendered score.
+//!   the rendered score, every move *settled* rather than dropped. The pose kept must be one the object
+//!   can hold: a glass standing on its base, tipped a few degrees about its edge, still touches the
+//!   support within [`super::support::CONTACT_M`] over most of its base and so costs nothing in
+//!   implausibility, and where its t = 0 shape is a little off (a base its support hid) such a tip can
+//!   fit the mask better; settling stands it back up (or lets it lean or fall where it would), so the
+//!   rendered score only ever compares resting poses.
 //!
 //! The cheap objective is the score with the splat silhouette's IoU and without the photometric term
 //! (which needs a render): `IoU_splat − w_rest · implausibility − w_prior · prior − w_turn · turn
@@ -78,6 +83,15 @@ pub struct Candidate {
     pub pose: Pose,
     /// Cheap objective.
     pub objective: f64,
+}
+
+/// How a pattern search puts each moved pose back on the support.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Placement {
+    /// Lowered onto whatever is below it ([`Support::drop`]).
+    Drop,
+    /// Brought to rest ([`Support::settle`]): a tilt the object cannot hold is undone.
+    Settle,
 }
 
 /// Which coordinates a pattern search moves.
@@ -249,12 +263,26 @@ impl Search<'_, '_> {
     pub fn refine(&mut self, c: Candidate) -> Candidate {
         let cheap = |s: &mut Self, p: &Pose| Ok(s.objective(p));
         let (pose, _) = self
-            .pattern(c.pose, STEPS, LEVELS, MAX_ROUNDS.0, Dofs::Tilt, cheap)
+            .pattern(
+                c.pose,
+                STEPS,
+                LEVELS,
+                MAX_ROUNDS.0,
+                (Dofs::Tilt, Placement::Drop),
+                cheap,
+            )
             .expect("the cheap objective does not fail");
         let settled = self.support.settle(self.shape, &pose);
         self.settled += 1;
         let (pose, objective) = self
-            .pattern(settled, STEPS, 2, MAX_ROUNDS.0, Dofs::Table, cheap)
+            .pattern(
+                settled,
+                STEPS,
+                2,
+                MAX_ROUNDS.0,
+                (Dofs::Table, Placement::Drop),
+                cheap,
+            )
             .expect("the cheap objective does not fail");
         Candidate {
             origin: c.origin,
@@ -266,12 +294,13 @@ impl Search<'_, '_> {
     /// The polish of a candidate on the rendered score; returns it with its score.
     pub fn polish(&mut self, c: Candidate) -> Result<(Candidate, Score)> {
         let rendered = |s: &mut Self, p: &Pose| s.score(p).map(|x| x.total);
+        let start = self.support.settle(self.shape, &c.pose);
         let (pose, _) = self.pattern(
-            c.pose,
+            start,
             POLISH_STEPS,
             POLISH_LEVELS,
             MAX_ROUNDS.1,
-            Dofs::Tilt,
+            (Dofs::Tilt, Placement::Settle),
             rendered,
         )?;
         let score = self.score(&pose)?;
@@ -286,7 +315,7 @@ impl Search<'_, '_> {
         steps: (f64, f64, f64),
         levels: u32,
         rounds: usize,
-        dofs: Dofs,
+        (dofs, placement): (Dofs, Placement),
         mut f: impl FnMut(&mut Self, &Pose) -> Result<f64>,
     ) -> Result<(Pose, f64)> {
         let mut best_f = f(self, &start)?;
@@ -310,7 +339,10 @@ impl Search<'_, '_> {
                         3 => best.turned(c, DQuat::from_rotation_x(sign * tilt), com),
                         _ => best.turned(c, DQuat::from_rotation_y(sign * tilt), com),
                     };
-                    let p = self.support.drop(self.shape, &p);
+                    let p = match placement {
+                        Placement::Drop => self.support.drop(self.shape, &p),
+                        Placement::Settle => self.support.settle(self.shape, &p),
+                    };
                     let v = f(self, &p)?;
                     if v > best_f {
                         (best, best_f, improved) = (p, v, true);
