@@ -303,7 +303,7 @@ pub fn relocalise(
             report.push(rel);
             continue;
         }
-        let bodies = bodies.get_or_insert_with(|| body_masks(&bases, removed));
+        let bodies = bodies.get_or_insert_with(|| body_masks(&bases, removed, ground));
         let Some(shape) = Shape::new(&bases[k], &bodies[k]) else {
             report.push(rel);
             continue;
@@ -391,8 +391,8 @@ fn mean(means: &[[f32; 3]]) -> DVec3 {
 }
 
 /// Per object of `bases` (t = 0 surfels), which of its surfels belong to its body ([`mod@body`]), against
-/// the hulls of the other objects and of the `removed` ones.
-fn body_masks(bases: &[Surfels], removed: &[Surfels]) -> Vec<Vec<bool>> {
+/// the hulls of the other objects and of the `removed` ones, over the table at `ground`.
+fn body_masks(bases: &[Surfels], removed: &[Surfels], ground: f64) -> Vec<Vec<bool>> {
     let all: Vec<Option<Shape>> = bases
         .iter()
         .chain(removed)
@@ -414,7 +414,7 @@ fn body_masks(bases: &[Surfels], removed: &[Surfels]) -> Vec<Vec<bool>> {
                     .filter(|(j, _)| *j != k)
                     .filter_map(|(_, h)| h.clone())
                     .collect();
-                body(&points(&base.means), &own.solid, &others)
+                body(&points(&base.means), &own.solid, &others, ground)
             }
         })
         .collect()

@@ -12,6 +12,13 @@
 //! [`HULL_MARGIN_M`], between their lowest and highest points (solid points are free of floaters). An
 //! object with more than half of its solid points inside another's hull is nested in it
 //! (a glass inside a bowl): that pair is left alone.
+//!
+//! An object that *sat on* another at t = 0 ([`sits_on`]: it reaches into the other's hull from
+//! above and does not itself come down to the table) had its base on that object's top, so none of
+//! its body is lower than that top, inside the hull or beside it. The shrunk hull alone misses what
+//! hangs just outside it: a mug that stood off-centre on an upturned tumbler or bowl, its base seen
+//! merged with the support, keeps a skirt 1 cm deep on the side that overhangs the hull, and on the
+//! table that skirt holds the mug up 10–20° tilted.
 
 use glam::{DVec2, DVec3};
 
@@ -59,16 +66,43 @@ impl Hull {
 }
 
 /// Per point of `points`, whether it belongs to the body: not inside any of `hulls`, unless more than
-/// half of `solid` (the same object's solid points) lies inside that hull.
-pub fn body(points: &[DVec3], solid: &[DVec3], hulls: &[Hull]) -> Vec<bool> {
+/// half of `solid` (the same object's solid points) lies inside that hull; and not below the top of
+/// an object it sat on ([`sits_on`]; the table at `ground`).
+pub fn body(points: &[DVec3], solid: &[DVec3], hulls: &[Hull], ground: f64) -> Vec<bool> {
     let applies: Vec<&Hull> = hulls
         .iter()
         .filter(|h| 2 * solid.iter().filter(|&&p| h.contains(p)).count() <= solid.len())
         .collect();
+    let tops: Vec<f64> = applies
+        .iter()
+        .filter(|h| sits_on(solid, h, ground))
+        .map(|h| h.z.1)
+        .collect();
     points
         .iter()
-        .map(|&p| !applies.iter().any(|h| h.contains(p)))
+        .map(|&p| !applies.iter().any(|h| h.contains(p)) && tops.iter().all(|&top| p.z >= top))
         .collect()
+}
+
+/// An object off the table by less than this (m) stands on it.
+pub const OFF_TABLE_M: f64 = 0.005;
+
+/// Whether the object of `solid` sat on the hull's object at t = 0 rather than beside it: part of it
+/// reaches into the hull from above (its centre higher than the hull's top), and nothing of it
+/// outside the hull comes down to the table at `ground` (a glass leaning on a neighbour stands on the
+/// table). Then its base lay on that top, a plane, and whatever of it is lower is not body wherever it
+/// is. The hull is the other object's horizontal extent shrunk by a margin, so where the two were seen
+/// as one, what hangs below that top just outside the hull (a base wider than what held it) escapes
+/// [`Hull::contains`]; once the support is gone, that edge alone would hold the object up, tilted.
+pub fn sits_on(solid: &[DVec3], h: &Hull, ground: f64) -> bool {
+    let n = solid.len().max(1) as f64;
+    let centre = solid.iter().map(|p| p.z).sum::<f64>() / n;
+    let lowest_beside = solid
+        .iter()
+        .filter(|&&p| !h.contains(p))
+        .map(|p| p.z)
+        .fold(f64::INFINITY, f64::min);
+    centre > h.z.1 && solid.iter().any(|&p| h.contains(p)) && lowest_beside > ground + OFF_TABLE_M
 }
 
 /// Indices of the convex hull of 2D points, counter-clockwise (Andrew's monotone chain); repeated
@@ -126,17 +160,48 @@ mod tests {
             .map(|i| DVec3::new(0.001 * i as f64, 0.0, 0.04 + 0.00099 * i as f64))
             .collect();
         glass.extend(&dome);
-        let b = body(&glass, &glass, &[lower]);
+        let b = body(&glass, &glass, &[lower], 0.0);
         let n = glass.len();
         assert!(b[n - 20..].iter().all(|x| !x), "the dome is excluded");
         assert!(b[..n - 20].iter().all(|x| *x), "the glass is kept");
     }
 
     #[test]
+    fn a_glass_that_sat_on_a_narrower_object_loses_what_hangs_below_its_top_beside_it() {
+        // Lower object: radius 2 cm, 0–6 cm. Upper glass (radius 3 cm) on it, off-centre by 1 cm,
+        // its base seen merged with the lower object's top: a ring hanging 1 cm below that top, part
+        // of it outside the lower object's hull.
+        let lower = Hull::of(&wall(0.0, 0.0, 0.02, 0.0, 0.06)).unwrap();
+        let mut glass = wall(0.01, 0.0, 0.03, 0.061, 0.14);
+        let ring: Vec<DVec3> = wall(0.01, 0.0, 0.025, 0.05, 0.059)
+            .into_iter()
+            .step_by(4)
+            .collect();
+        glass.extend(&ring);
+        let b = body(&glass, &glass, &[lower], 0.0);
+        let n = glass.len();
+        assert!(
+            b[n - ring.len()..].iter().all(|x| !x),
+            "the ring is excluded"
+        );
+        assert!(b[..n - ring.len()].iter().all(|x| *x), "the glass is kept");
+    }
+
+    #[test]
+    fn a_glass_leaning_against_a_neighbour_keeps_its_points_below_the_neighbours_top() {
+        let a = Hull::of(&wall(0.0, 0.0, 0.04, 0.0, 0.06)).unwrap();
+        // Leaning: its foot on the table beside the neighbour, its top above the neighbour's.
+        let glass: Vec<DVec3> = (0..60)
+            .map(|i| DVec3::new(0.05 + 0.0005 * i as f64, 0.0, 0.002 * i as f64))
+            .collect();
+        assert!(body(&glass, &glass, &[a], 0.0).iter().all(|x| *x));
+    }
+
+    #[test]
     fn a_glass_nested_inside_a_bowl_keeps_all_its_points() {
         let bowl = Hull::of(&wall(0.0, 0.0, 0.08, 0.0, 0.08)).unwrap();
         let glass = wall(0.01, 0.0, 0.03, 0.005, 0.07);
-        assert!(body(&glass, &glass, &[bowl]).iter().all(|x| *x));
+        assert!(body(&glass, &glass, &[bowl], 0.0).iter().all(|x| *x));
     }
 
     #[test]
@@ -144,6 +209,6 @@ mod tests {
         let a = Hull::of(&wall(0.0, 0.0, 0.04, 0.0, 0.1)).unwrap();
         // Touching: the neighbour's wall passes 1 mm inside the first one's radius at one point.
         let b = wall(0.079, 0.0, 0.04, 0.0, 0.1);
-        assert!(body(&b, &b, &[a]).iter().all(|x| *x));
+        assert!(body(&b, &b, &[a], 0.0).iter().all(|x| *x));
     }
 }
