@@ -40,6 +40,39 @@ pub fn object_centres(s: &Surfels, objects: &[(u16, usize)]) -> Vec<(u16, Vec<[f
         .collect()
 }
 
+/// Height above the table (m) within which an object's surfel centres are its base.
+pub const BASE_M: f32 = 0.005;
+
+/// Whether an object (its surfel centres `points`) stands on the table at `ground` by itself: the
+/// horizontal centroid of its centres (its centre of mass, for a glass of even wall) lies inside the
+/// convex hull of its base, the centres within [`BASE_M`] of the table. Taking a neighbour away cannot
+/// move such an object; one that leans on a neighbour, or sits on it, can.
+pub fn stands_alone(points: &[[f32; 3]], ground: f32) -> bool {
+    let base: Vec<[f64; 2]> = points
+        .iter()
+        .filter(|p| p[2] < ground + BASE_M)
+        .map(|p| [p[0] as f64, p[1] as f64])
+        .collect();
+    if base.len() < 3 {
+        return false;
+    }
+    let n = points.len() as f64;
+    let c = points.iter().fold([0.0f64; 2], |a, p| {
+        [a[0] + p[0] as f64 / n, a[1] + p[1] as f64 / n]
+    });
+    let pts: Vec<glam::DVec2> = base.iter().map(|b| glam::DVec2::from_array(*b)).collect();
+    let hull = crate::relocalise::body::convex_hull(&pts);
+    if hull.len() < 3 {
+        return false;
+    }
+    let c = glam::DVec2::from_array(c);
+    // Counter-clockwise hull: inside when left of (or on) every edge.
+    (0..hull.len()).all(|i| {
+        let (a, b) = (pts[hull[i]], pts[hull[(i + 1) % hull.len()]]);
+        (b - a).perp_dot(c - a) >= 0.0
+    })
+}
+
 /// Drops the points farther from the component-wise median than [`OUTLIER_FACTOR`] times the 90th
 /// percentile of that distance: floaters, and surfels labelled with an object but lying at another.
 pub fn trim(pts: Vec<[f32; 3]>) -> Vec<[f32; 3]> {
@@ -150,6 +183,35 @@ mod tests {
         let a = column(0.0079, 10);
         assert!(!Grid::new(&a).touches(&column(0.0169, 10)));
         assert!(Grid::new(&a).touches(&column(0.0149, 10)));
+    }
+
+    /// Centres on the wall of a cylinder (radius 3 cm, 10 cm high) whose axis leans `tilt` radians
+    /// towards +x about its foot at the origin, raised `lift` above the table.
+    fn wall(tilt: f32, lift: f32) -> Vec<[f32; 3]> {
+        let mut out = Vec::new();
+        for i in 0..36 {
+            let a = i as f32 * std::f32::consts::TAU / 36.0;
+            for j in 0..=20 {
+                let (u, v, h) = (0.03 * a.cos(), 0.03 * a.sin(), 0.005 * j as f32);
+                // Rotate (u, v, h) about the y axis through the foot's edge at x = −3 cm.
+                let (x, z) = (u + 0.03, h);
+                let (x, z) = (
+                    x * tilt.cos() + z * tilt.sin(),
+                    -x * tilt.sin() + z * tilt.cos(),
+                );
+                out.push([x - 0.03, v, z + lift]);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn an_upright_glass_stands_alone_a_leaning_or_raised_one_does_not() {
+        assert!(stands_alone(&wall(0.0, 0.0), 0.0));
+        // Leaning 40° on its foot's edge: its centre of mass is far outside that edge.
+        assert!(!stands_alone(&wall(-0.7, 0.0), 0.0));
+        // Standing on something 4 cm high.
+        assert!(!stands_alone(&wall(0.0, 0.04), 0.0));
     }
 
     #[test]

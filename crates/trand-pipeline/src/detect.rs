@@ -8,7 +8,11 @@
 //! objects with the Hungarian method on the cost `1 − IoU + w·(centroid distance / image diagonal)`;
 //! objects left without an instance were removed. Overlap alone cannot tell which object went when one
 //! stood on another and fell off it after the removal (the fallen object overlaps the removed one's
-//! old place better than its own), which is why ids win when the mask has them. With `Auto`, ids that
+//! old place better than its own), which is why ids win when the mask has them. Without ids, physics
+//! breaks the tie ([`assign_by_overlap`]): every choice of removed objects is tried, and under each the
+//! objects it could move (in contact with a removed one, [`crate::contact::may_move`], and not standing
+//! on the table by themselves) cost at most [`MOVED_COST`], since their t = 0 place says nothing of
+//! where they are now; an object nothing moved must be found where it stood. With `Auto`, ids that
 //! merely lie among the t = 0 ids are not trusted when two or more instances contradict the rendered
 //! objects (see [`contradicted`]); the CLI also takes overlap when the t = 0 run had to associate its
 //! training masks, since the same segmenter made the new mask.
@@ -41,6 +45,7 @@ pub fn detect(
     settings: &RenderSettings,
     centroid_weight: f64,
     identity: Identity,
+    movable_if: &dyn Fn(&[u16]) -> Vec<u16>,
 ) -> Result<(Vec<Match>, Identity)> {
     let inst = view.instance.as_ref().ok_or_else(|| PipelineError::View {
         view: view.name.clone(),
@@ -131,9 +136,79 @@ pub fn detect(
     let assign = if new_ids.is_empty() {
         vec![None; channels.len()]
     } else {
-        hungarian(&cost)
+        assign_by_overlap(channels, &cost, movable_if)
     };
     Ok((matches(channels, &new_ids, &ious, &assign), identity))
+}
+
+/// Largest cost of matching an object the removal may have moved: a standing object that stayed
+/// overlaps its t = 0 silhouette by more than half, so a worse match is likelier a moved object's.
+pub const MOVED_COST: f64 = 0.5;
+
+/// Rows of `cost` (objects of `channels`) assigned to its columns (new instances). With fewer
+/// instances than objects, every set of `objects − instances` removed objects is tried; under each,
+/// the rows `movable_if(removed)` names cost at most [`MOVED_COST`], the others are matched by the
+/// Hungarian method at their cost, and the set with the least total wins (the first, in
+/// lexicographic order, of equal ones). With no movable objects this is the plain Hungarian
+/// assignment of the whole matrix.
+fn assign_by_overlap(
+    channels: &[(u16, usize)],
+    cost: &[Vec<f64>],
+    movable_if: &dyn Fn(&[u16]) -> Vec<u16>,
+) -> Vec<Option<usize>> {
+    let (n, m) = (cost.len(), cost[0].len());
+    if m >= n {
+        return hungarian(cost);
+    }
+    let mut best: Option<(f64, Vec<Option<usize>>)> = None;
+    for removed in subsets(n, n - m) {
+        let ids: Vec<u16> = removed.iter().map(|&r| channels[r].0).collect();
+        let movable = movable_if(&ids);
+        let rows: Vec<usize> = (0..n).filter(|r| !removed.contains(r)).collect();
+        let sub: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|&r| {
+                let capped = movable.contains(&channels[r].0);
+                cost[r]
+                    .iter()
+                    .map(|&c| if capped { c.min(MOVED_COST) } else { c })
+                    .collect()
+            })
+            .collect();
+        let a = hungarian(&sub);
+        let total: f64 = a
+            .iter()
+            .zip(&sub)
+            .map(|(c, row)| c.map_or(0.0, |c| row[c]))
+            .sum();
+        if best.as_ref().is_none_or(|b| total < b.0 - 1e-12) {
+            let mut full = vec![None; n];
+            for (k, &r) in rows.iter().enumerate() {
+                full[r] = a[k];
+            }
+            best = Some((total, full));
+        }
+    }
+    best.map(|b| b.1).unwrap_or_else(|| hungarian(cost))
+}
+
+/// The `k`-element subsets of `0..n`, in lexicographic order.
+fn subsets(n: usize, k: usize) -> Vec<Vec<usize>> {
+    let mut out = Vec::new();
+    let mut cur: Vec<usize> = (0..k).collect();
+    if k > n {
+        return out;
+    }
+    loop {
+        out.push(cur.clone());
+        let Some(i) = (0..k).rev().find(|&i| cur[i] < n - k + i) else {
+            return out;
+        };
+        cur[i] += 1;
+        for j in i + 1..k {
+            cur[j] = cur[j - 1] + 1;
+        }
+    }
 }
 
 /// IoU below which an instance does not show the t = 0 object its id names.
@@ -245,7 +320,16 @@ mod tests {
         let (s, view) = fell_into_the_removed_ones_place();
         let channels = [(1, 0), (2, 1)];
         let settings = RenderSettings::default();
-        let (by_id, rule) = detect(&s, &channels, &view, &settings, 0.5, Identity::Auto).unwrap();
+        let (by_id, rule) = detect(
+            &s,
+            &channels,
+            &view,
+            &settings,
+            0.5,
+            Identity::Auto,
+            &|_| Vec::new(),
+        )
+        .unwrap();
         assert_eq!(rule, Identity::ObjectIds);
         assert_eq!(
             (by_id[0].new_id, by_id[1].new_id),
@@ -253,8 +337,16 @@ mod tests {
             "{by_id:?}"
         );
         // Overlap alone takes the fallen object for the one that stood there.
-        let (by_overlap, rule) =
-            detect(&s, &channels, &view, &settings, 0.5, Identity::Overlap).unwrap();
+        let (by_overlap, rule) = detect(
+            &s,
+            &channels,
+            &view,
+            &settings,
+            0.5,
+            Identity::Overlap,
+            &|_| Vec::new(),
+        )
+        .unwrap();
         assert_eq!(rule, Identity::Overlap);
         assert_eq!(
             (by_overlap[0].new_id, by_overlap[1].new_id),
@@ -295,8 +387,16 @@ mod tests {
             instance: Some(trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap()),
             depth: None,
         };
-        let (m, rule) =
-            detect(&s, &[(1, 0), (2, 1)], &view, &settings, 0.5, Identity::Auto).unwrap();
+        let (m, rule) = detect(
+            &s,
+            &[(1, 0), (2, 1)],
+            &view,
+            &settings,
+            0.5,
+            Identity::Auto,
+            &|_| Vec::new(),
+        )
+        .unwrap();
         assert_eq!(rule, Identity::Overlap);
         assert_eq!((m[0].new_id, m[1].new_id), (Some(2), Some(1)), "{m:?}");
     }
@@ -311,6 +411,7 @@ mod tests {
             &RenderSettings::default(),
             0.5,
             Identity::ObjectIds,
+            &|_| Vec::new(),
         )
         .unwrap_err();
         let msg = err.to_string();
@@ -330,9 +431,69 @@ mod tests {
             &RenderSettings::default(),
             0.5,
             Identity::Auto,
+            &|_| Vec::new(),
         )
         .unwrap();
         assert_eq!(rule, Identity::Overlap);
         assert_eq!((m[0].new_id, m[1].new_id), (Some(5), None), "{m:?}");
+    }
+
+    /// Object 1 stood at A, object 2 leaned on it from B. In the new image (per-image id 7) one object
+    /// lies half over A's place: object 2, fallen once object 1 was taken.
+    fn fell_half_over_the_removed_ones_place() -> (Surfels, View) {
+        let (s, mut view) = fell_into_the_removed_ones_place();
+        let shifted = cylinder(0.035, 0.0, 0);
+        let out = render::<f32, _>(&shifted, &camera(), &RenderSettings::default()).unwrap();
+        let inst = view.instance.as_mut().unwrap();
+        for (v, a) in inst.data.iter_mut().zip(&out.alpha) {
+            *v = if *a > 0.5 { 7 } else { 0 };
+        }
+        (s, view)
+    }
+
+    #[test]
+    fn without_ids_an_object_nothing_could_move_is_not_taken_for_one_that_fell() {
+        let (s, view) = fell_half_over_the_removed_ones_place();
+        let objects = [(1, 0), (2, 1)];
+        let settings = RenderSettings::default();
+        // Object 1 stands alone; taking it away moves object 2, taking object 2 away moves nothing.
+        let physics = |removed: &[u16]| if removed == [1] { vec![2] } else { vec![] };
+        let (m, _) = detect(
+            &s,
+            &objects,
+            &view,
+            &settings,
+            0.5,
+            Identity::Overlap,
+            &physics,
+        )
+        .unwrap();
+        assert!(
+            m[0].iou < 1.0 - MOVED_COST,
+            "object 1 overlaps the instance by {}",
+            m[0].iou
+        );
+        assert_eq!((m[0].new_id, m[1].new_id), (None, Some(7)), "{m:?}");
+        // Without the physics, overlap alone keeps object 1 and removes object 2.
+        let (m, _) = detect(
+            &s,
+            &objects,
+            &view,
+            &settings,
+            0.5,
+            Identity::Overlap,
+            &|_| vec![],
+        )
+        .unwrap();
+        assert_eq!((m[0].new_id, m[1].new_id), (Some(7), None), "{m:?}");
+    }
+
+    #[test]
+    fn subsets_are_every_k_of_n_once_in_order() {
+        assert_eq!(
+            subsets(4, 2),
+            vec![[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]
+        );
+        assert_eq!(subsets(3, 3), vec![vec![0, 1, 2]]);
     }
 }

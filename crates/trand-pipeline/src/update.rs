@@ -121,6 +121,22 @@ pub fn update_with_cancel(
         targets::check_channels(channels, surfels.num_objects)
             .map_err(|r| PipelineError::Invalid(format!("object channels: {r}")))?;
     }
+    let ground = match opts.mpm.ground {
+        trand_physics::Ground::Sticky { height } => height as f64,
+        trand_physics::Ground::None => 0.0,
+    };
+    let centres = crate::contact::object_centres(&surfels, channels);
+    let alone: Vec<u16> = centres
+        .iter()
+        .filter(|(_, p)| crate::contact::stands_alone(p, ground as f32))
+        .map(|(id, _)| *id)
+        .collect();
+    // Which objects a removal could move, for telling the removed from the fallen without ids.
+    let movable_if = |removed: &[u16]| -> Vec<u16> {
+        let mut m = crate::contact::may_move(&centres, removed);
+        m.retain(|id| !alone.contains(id));
+        m
+    };
     let (matches, identity) = if object_aware {
         detect(
             &surfels,
@@ -129,6 +145,7 @@ pub fn update_with_cancel(
             &settings,
             opts.centroid_weight,
             opts.identity,
+            &movable_if,
         )?
     } else {
         (Vec::new(), opts.identity)
@@ -151,10 +168,7 @@ pub fn update_with_cancel(
             .map(|m| m.object_id)
             .collect(),
     };
-    let movable = crate::contact::may_move(
-        &crate::contact::object_centres(&surfels, channels),
-        &removed,
-    );
+    let movable = crate::contact::may_move(&centres, &removed);
     let relocalising = opts.relocalise == Stage::On && object_aware;
     // The removed objects as they were, for the relocalisation's t = 0 scene.
     let mut removed_surfels: Vec<Surfels> = Vec::new();
@@ -225,10 +239,6 @@ pub fn update_with_cancel(
                 })
             })
             .collect();
-        let ground = match opts.mpm.ground {
-            trand_physics::Ground::Sticky { height } => height as f64,
-            trand_physics::Ground::None => 0.0,
-        };
         let image = NewImage {
             camera: &new_view.camera,
             instance: inst,
