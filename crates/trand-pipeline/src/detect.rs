@@ -34,6 +34,9 @@ pub struct Match {
     /// Instance id in the new mask, if matched.
     pub new_id: Option<u16>,
     pub iou: f64,
+    /// Matched by overlap as an object the removal could have moved, so its t = 0 place was not
+    /// required of it ([`assign_by_overlap`]).
+    pub may_have_moved: bool,
 }
 
 /// Step 1: finds each t = 0 object among the new instances (by id or by overlap, see [`Identity`]);
@@ -111,7 +114,7 @@ pub fn detect(
             .iter()
             .map(|&(object_id, _)| new_ids.iter().position(|&i| i == object_id))
             .collect();
-        return Ok((matches(channels, &new_ids, &ious, &assign), identity));
+        return Ok((matches(channels, &new_ids, &ious, &assign, &[]), identity));
     }
     let w = inst.width as usize;
     let diag = ((inst.width as f64).powi(2) + (inst.height as f64).powi(2)).sqrt();
@@ -133,12 +136,15 @@ pub fn detect(
                 .collect()
         })
         .collect();
-    let assign = if new_ids.is_empty() {
-        vec![None; channels.len()]
+    let (assign, moved) = if new_ids.is_empty() {
+        (vec![None; channels.len()], Vec::new())
     } else {
         assign_by_overlap(channels, &cost, movable_if)
     };
-    Ok((matches(channels, &new_ids, &ious, &assign), identity))
+    Ok((
+        matches(channels, &new_ids, &ious, &assign, &moved),
+        identity,
+    ))
 }
 
 /// Largest cost of matching an object the removal may have moved: a standing object that stayed
@@ -150,17 +156,17 @@ pub const MOVED_COST: f64 = 0.5;
 /// the rows `movable_if(removed)` names cost at most [`MOVED_COST`], the others are matched by the
 /// Hungarian method at their cost, and the set with the least total wins (the first, in
 /// lexicographic order, of equal ones). With no movable objects this is the plain Hungarian
-/// assignment of the whole matrix.
+/// assignment of the whole matrix. Returns the assignment and the ids the winning set could move.
 fn assign_by_overlap(
     channels: &[(u16, usize)],
     cost: &[Vec<f64>],
     movable_if: &dyn Fn(&[u16]) -> Vec<u16>,
-) -> Vec<Option<usize>> {
+) -> (Vec<Option<usize>>, Vec<u16>) {
     let (n, m) = (cost.len(), cost[0].len());
     if m >= n {
-        return hungarian(cost);
+        return (hungarian(cost), Vec::new());
     }
-    let mut best: Option<(f64, Vec<Option<usize>>)> = None;
+    let mut best: Option<(f64, Vec<Option<usize>>, Vec<u16>)> = None;
     for removed in subsets(n, n - m) {
         let ids: Vec<u16> = removed.iter().map(|&r| channels[r].0).collect();
         let movable = movable_if(&ids);
@@ -186,10 +192,10 @@ fn assign_by_overlap(
             for (k, &r) in rows.iter().enumerate() {
                 full[r] = a[k];
             }
-            best = Some((total, full));
+            best = Some((total, full, movable));
         }
     }
-    best.map(|b| b.1).unwrap_or_else(|| hungarian(cost))
+    best.map_or_else(|| (hungarian(cost), Vec::new()), |b| (b.1, b.2))
 }
 
 /// The `k`-element subsets of `0..n`, in lexicographic order.
@@ -236,12 +242,14 @@ fn contradicted(channels: &[(u16, usize)], new_ids: &[u16], ious: &[Vec<f64>]) -
         .count()
 }
 
-/// The matches of each t = 0 object (row of `ious`) given the new instance (column) assigned to it.
+/// The matches of each t = 0 object (row of `ious`) given the new instance (column) assigned to it
+/// and the ids matched as objects the removal could have moved.
 fn matches(
     channels: &[(u16, usize)],
     new_ids: &[u16],
     ious: &[Vec<f64>],
     assign: &[Option<usize>],
+    moved: &[u16],
 ) -> Vec<Match> {
     channels
         .iter()
@@ -252,12 +260,14 @@ fn matches(
                 channel,
                 new_id: Some(new_ids[c]),
                 iou: ious[r][c],
+                may_have_moved: moved.contains(&object_id),
             },
             None => Match {
                 object_id,
                 channel,
                 new_id: None,
                 iou: ious[r].iter().copied().fold(0.0, f64::max),
+                may_have_moved: false,
             },
         })
         .collect()
@@ -474,6 +484,7 @@ mod tests {
             m[0].iou
         );
         assert_eq!((m[0].new_id, m[1].new_id), (None, Some(7)), "{m:?}");
+        assert!(m[1].may_have_moved && !m[0].may_have_moved, "{m:?}");
         // Without the physics, overlap alone keeps object 1 and removes object 2.
         let (m, _) = detect(
             &s,

@@ -421,8 +421,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     for m in &up.matches {
         match m.new_id {
             Some(n) => println!(
-                "object {} -> new instance {n} (IoU {:.2})",
-                m.object_id, m.iou
+                "object {} -> new instance {n} (IoU {:.2}{})",
+                m.object_id,
+                m.iou,
+                if m.may_have_moved {
+                    "; may have moved: it touched a removed object"
+                } else {
+                    ""
+                }
             ),
             None => println!(
                 "object {} -> not found (best IoU {:.2}): removed",
