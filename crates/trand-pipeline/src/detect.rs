@@ -9,7 +9,7 @@
 //! objects left without an instance were removed. Overlap alone cannot tell which object went when one
 //! stood on another and fell off it after the removal (the fallen object overlaps the removed one's
 //! old place better than its own), which is why ids win when the mask has them. Without ids, physics
-//! breaks the tie ([`assign_by_overlap`]): every choice of removed objects is tried, and under each the
+//! breaks the tie (`assign_by_overlap`): every choice of removed objects is tried, and under each the
 //! objects it could move (in contact with a removed one, [`crate::contact::may_move`], and not standing
 //! on the table by themselves) cost at most [`MOVED_COST`], since their t = 0 place says nothing of
 //! where they are now; an object nothing moved must be found where it stood. With `Auto`, ids that
@@ -35,7 +35,7 @@ pub struct Match {
     pub new_id: Option<u16>,
     pub iou: f64,
     /// Matched by overlap as an object the removal could have moved, so its t = 0 place was not
-    /// required of it ([`assign_by_overlap`]).
+    /// required of it (see the module docs).
     pub may_have_moved: bool,
 }
 
@@ -155,15 +155,15 @@ pub const MOVED_COST: f64 = 0.5;
 /// instances than objects, every set of `objects − instances` removed objects is tried; under each,
 /// the rows `movable_if(removed)` names cost at most [`MOVED_COST`], the others are matched by the
 /// Hungarian method at their cost, and the set with the least total wins (the first, in
-/// lexicographic order, of equal ones). With no movable objects this is the plain Hungarian
-/// assignment of the whole matrix. Returns the assignment and the ids the winning set could move.
+/// lexicographic order, of equal ones). With no movable objects, or more than [`MAX_REMOVAL_SETS`]
+/// sets, this is the plain Hungarian assignment of the whole matrix. Returns the assignment and the ids the winning set could move.
 fn assign_by_overlap(
     channels: &[(u16, usize)],
     cost: &[Vec<f64>],
     movable_if: &dyn Fn(&[u16]) -> Vec<u16>,
 ) -> (Vec<Option<usize>>, Vec<u16>) {
     let (n, m) = (cost.len(), cost[0].len());
-    if m >= n {
+    if m >= n || choose(n, n - m) > MAX_REMOVAL_SETS {
         return (hungarian(cost), Vec::new());
     }
     let mut best: Option<(f64, Vec<Option<usize>>, Vec<u16>)> = None;
@@ -196,6 +196,15 @@ fn assign_by_overlap(
         }
     }
     best.map_or_else(|| (hungarian(cost), Vec::new()), |b| (b.1, b.2))
+}
+
+/// Most sets of removed objects [`assign_by_overlap`] tries (each costs a contact closure); beyond, as
+/// when half of fifteen objects went at once, overlap alone decides.
+const MAX_REMOVAL_SETS: u64 = 500;
+
+/// The binomial coefficient `n` choose `k`.
+fn choose(n: usize, k: usize) -> u64 {
+    (0..k as u64).fold(1, |c, i| c * (n as u64 - i) / (i + 1))
 }
 
 /// The `k`-element subsets of `0..n`, in lexicographic order.
@@ -506,5 +515,6 @@ mod tests {
             vec![[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]
         );
         assert_eq!(subsets(3, 3), vec![vec![0, 1, 2]]);
+        assert_eq!((choose(4, 2), choose(15, 7), choose(6, 0)), (6, 6435, 1));
     }
 }
