@@ -13,8 +13,10 @@
 
 use std::collections::HashMap;
 
+use glam::DVec2;
 use trand_core::Surfels;
 
+use crate::relocalise::body::{convex_hull, inside_convex};
 use crate::surfel_ops::channel_probs;
 
 /// Largest centre distance of two surfels of objects in contact (m): surfels sit on the surfaces,
@@ -48,29 +50,17 @@ pub const BASE_M: f32 = 0.005;
 /// convex hull of its base, the centres within [`BASE_M`] of the table. Taking a neighbour away cannot
 /// move such an object; one that leans on a neighbour, or sits on it, can.
 pub fn stands_alone(points: &[[f32; 3]], ground: f32) -> bool {
-    let base: Vec<[f64; 2]> = points
+    let base: Vec<DVec2> = points
         .iter()
         .filter(|p| p[2] < ground + BASE_M)
-        .map(|p| [p[0] as f64, p[1] as f64])
+        .map(|p| DVec2::new(p[0] as f64, p[1] as f64))
         .collect();
-    if base.len() < 3 {
-        return false;
-    }
     let n = points.len() as f64;
-    let c = points.iter().fold([0.0f64; 2], |a, p| {
-        [a[0] + p[0] as f64 / n, a[1] + p[1] as f64 / n]
+    let centroid = points.iter().fold(DVec2::ZERO, |a, p| {
+        a + DVec2::new(p[0] as f64 / n, p[1] as f64 / n)
     });
-    let pts: Vec<glam::DVec2> = base.iter().map(|b| glam::DVec2::from_array(*b)).collect();
-    let hull = crate::relocalise::body::convex_hull(&pts);
-    if hull.len() < 3 {
-        return false;
-    }
-    let c = glam::DVec2::from_array(c);
-    // Counter-clockwise hull: inside when left of (or on) every edge.
-    (0..hull.len()).all(|i| {
-        let (a, b) = (pts[hull[i]], pts[hull[(i + 1) % hull.len()]]);
-        (b - a).perp_dot(c - a) >= 0.0
-    })
+    let polygon: Vec<DVec2> = convex_hull(&base).into_iter().map(|i| base[i]).collect();
+    polygon.len() >= 3 && inside_convex(&polygon, centroid, 0.0)
 }
 
 /// Drops the points farther from the component-wise median than [`OUTLIER_FACTOR`] times the 90th

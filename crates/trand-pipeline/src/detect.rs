@@ -312,17 +312,21 @@ mod tests {
         (s, view)
     }
 
-    fn fell_into_the_removed_ones_place() -> (Surfels, View) {
-        let mut s = cylinder(0.0, 0.0, 0);
-        s.append(&cylinder(0.12, 0.04, 1));
-        let one = cylinder(0.0, 0.0, 0);
-        let out = render::<f32, _>(&one, &camera(), &RenderSettings::default()).unwrap();
+    /// The new view's instance mask: `id` where `object` covers a pixel (alpha > ½), else 0.
+    fn instance_mask(object: &Surfels, id: u16) -> trand_io::InstanceMap {
+        let out = render::<f32, _>(object, &camera(), &RenderSettings::default()).unwrap();
         let data: Vec<u16> = out
             .alpha
             .iter()
-            .map(|&a| if a > 0.5 { 2 } else { 0 })
+            .map(|&a| if a > 0.5 { id } else { 0 })
             .collect();
-        let inst = trand_io::InstanceMap::from_vec(200, 150, 1, data).unwrap();
+        trand_io::InstanceMap::from_vec(out.width, out.height, 1, data).unwrap()
+    }
+
+    fn fell_into_the_removed_ones_place() -> (Surfels, View) {
+        let mut s = cylinder(0.0, 0.0, 0);
+        s.append(&cylinder(0.12, 0.04, 1));
+        let inst = instance_mask(&cylinder(0.0, 0.0, 0), 2);
         let view = View {
             name: "new".into(),
             frame: 0,
@@ -461,12 +465,7 @@ mod tests {
     /// lies half over A's place: object 2, fallen once object 1 was taken.
     fn fell_half_over_the_removed_ones_place() -> (Surfels, View) {
         let (s, mut view) = fell_into_the_removed_ones_place();
-        let shifted = cylinder(0.035, 0.0, 0);
-        let out = render::<f32, _>(&shifted, &camera(), &RenderSettings::default()).unwrap();
-        let inst = view.instance.as_mut().unwrap();
-        for (v, a) in inst.data.iter_mut().zip(&out.alpha) {
-            *v = if *a > 0.5 { 7 } else { 0 };
-        }
+        view.instance = Some(instance_mask(&cylinder(0.035, 0.0, 0), 7));
         (s, view)
     }
 

@@ -54,15 +54,19 @@ impl Hull {
         if p.z < self.z.0 || p.z > self.z.1 {
             return false;
         }
-        let q = p.truncate();
-        let n = self.polygon.len();
-        (0..n).all(|i| {
-            let (a, b) = (self.polygon[i], self.polygon[(i + 1) % n]);
-            let e = b - a;
-            // Signed distance to the left of the edge.
-            e.perp_dot(q - a) / e.length().max(1e-12) >= HULL_MARGIN_M
-        })
+        inside_convex(&self.polygon, p.truncate(), HULL_MARGIN_M)
     }
+}
+
+/// Whether `q` lies inside the counter-clockwise convex `polygon`, at least `margin` from every side
+/// (its signed distance to the left of each edge; with a margin of 0 a point on a side is inside).
+pub fn inside_convex(polygon: &[DVec2], q: DVec2, margin: f64) -> bool {
+    let n = polygon.len();
+    (0..n).all(|i| {
+        let (a, b) = (polygon[i], polygon[(i + 1) % n]);
+        let e = b - a;
+        e.perp_dot(q - a) / e.length().max(1e-12) >= margin
+    })
 }
 
 /// Per point of `points`, whether it belongs to the body: not inside any of `hulls`, unless more than

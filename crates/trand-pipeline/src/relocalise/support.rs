@@ -37,7 +37,7 @@
 
 use glam::{DQuat, DVec2, DVec3};
 
-use super::body::convex_hull;
+use super::body::{convex_hull, inside_convex};
 use super::pose::{Pose, Shape};
 
 /// Heightfield and occupancy cell edge (m).
@@ -336,11 +336,10 @@ fn nearest_on_hull(points: &[DVec3], q: DVec2) -> Option<(f64, Pivot, DVec2)> {
             hull[0].truncate(),
         )),
         n => {
-            let inside = n >= 3
-                && (0..n).all(|i| {
-                    let (a, b) = (hull[i].truncate(), hull[(i + 1) % n].truncate());
-                    (b - a).perp_dot(q - a) >= 0.0
-                });
+            let inside = n >= 3 && {
+                let polygon: Vec<DVec2> = hull.iter().map(|p| p.truncate()).collect();
+                inside_convex(&polygon, q, 0.0)
+            };
             let mut best = (f64::INFINITY, Pivot::Point(hull[0]), hull[0].truncate());
             let edges = if n == 2 { 1 } else { n };
             for i in 0..edges {
