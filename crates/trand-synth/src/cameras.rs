@@ -13,6 +13,13 @@
 //! [`Rig::Varied`] draws them from [`VARIED_BIRDSEYE_HEIGHT_M`], [`VARIED_RING_ELEVATION_DEG`] and
 //! [`VARIED_RING_DISTANCE_M`], ranges that span the reference values.
 //!
+//! [`Rig::Narrow`] is a robot's capture instead: a stereo rig or a wrist camera moved a few
+//! centimetres. Its axis has a random azimuth and the varied ring's elevation and distance; frame 0
+//! (and `train_1` frame 0) looks along the axis, frames 1..=12 lie on a circle of
+//! [`NARROW_TRAIN_RADIUS_DEG`] around it at 30° steps (so any six odd frames span 12°, as the KeyPose
+//! stereo captures do), and the test views are drawn within [`NARROW_TEST_RADIUS_DEG`] of the axis:
+//! the depth a robot wants is at its own cameras, not behind the objects.
+//!
 //! Intrinsics: `f = 600 · W / 640` (the reference's 600 px at 640 px width), centred principal
 //! point `c = ((W − 1)/2, (H − 1)/2)` (integer pixel centres).
 
@@ -37,13 +44,20 @@ pub const VARIED_RING_ELEVATION_DEG: (f64, f64) = (37.0, 46.0);
 /// Ring distance range of [`Rig::Varied`] (m).
 pub const VARIED_RING_DISTANCE_M: (f64, f64) = (0.53, 0.65);
 
-/// How the training rig's height, elevation and distance are chosen.
+/// Angular radius of [`Rig::Narrow`]'s circle of training views (degrees).
+pub const NARROW_TRAIN_RADIUS_DEG: f64 = 6.0;
+/// Angular radius of the cone [`Rig::Narrow`]'s test views are drawn in (degrees).
+pub const NARROW_TEST_RADIUS_DEG: f64 = 10.0;
+
+/// How the training rig is laid out and its height, elevation and distance chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Rig {
     /// [`BIRDSEYE_HEIGHT_M`], [`RING_ELEVATION_DEG`], [`RING_DISTANCE_M`] for every sequence.
     Fixed,
     /// Drawn per sequence from the `VARIED_*` ranges, as the reference sequences are.
     Varied,
+    /// Every view within a few degrees of one axis (see the module docs).
+    Narrow,
 }
 
 /// Intrinsics for a `width × height` image (focal scaled with width).
@@ -58,6 +72,11 @@ pub struct RingInfo {
     pub ring_azimuth0_deg: f64,
     pub ring_elevation_deg: f64,
     pub ring_distance_m: f64,
+    /// [`Rig::Narrow`]: the angular radius of the training circle around the axis whose azimuth,
+    /// elevation and distance the `ring_*` fields give (frame 0 then looks along that axis and
+    /// `birdseye_height_m` is unused).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub narrow_radius_deg: Option<f64>,
 }
 
 /// Camera on a sphere around `target`: azimuth from +x towards +y, elevation above the table.
@@ -82,8 +101,9 @@ fn ring_info(rig: Rig, rng: &mut impl rand::Rng) -> RingInfo {
             ring_azimuth0_deg,
             ring_elevation_deg: RING_ELEVATION_DEG,
             ring_distance_m: RING_DISTANCE_M,
+            narrow_radius_deg: None,
         },
-        Rig::Varied => {
+        Rig::Varied | Rig::Narrow => {
             let (h, e, d) = (
                 VARIED_BIRDSEYE_HEIGHT_M,
                 VARIED_RING_ELEVATION_DEG,
@@ -94,12 +114,28 @@ fn ring_info(rig: Rig, rng: &mut impl rand::Rng) -> RingInfo {
                 ring_azimuth0_deg,
                 ring_elevation_deg: rng.random_range(e.0..e.1),
                 ring_distance_m: rng.random_range(d.0..d.1),
+                narrow_radius_deg: (rig == Rig::Narrow).then_some(NARROW_TRAIN_RADIUS_DEG),
             }
         }
     }
 }
 
-/// Bird's-eye view plus the 12-view ring.
+/// A camera `radius_deg` away from the axis at (`azimuth_deg`, `elevation_deg`), in direction `phi`
+/// around it (azimuth offsets are scaled by `1 / cos(elevation)` so that both offsets are angles).
+fn off_axis(
+    k: Intrinsics,
+    target: DVec3,
+    (azimuth_deg, elevation_deg): (f64, f64),
+    radius_deg: f64,
+    phi: f64,
+    distance: f64,
+) -> Camera {
+    let el = elevation_deg + radius_deg * phi.sin();
+    let az = azimuth_deg + radius_deg * phi.cos() / elevation_deg.to_radians().cos();
+    orbit(k, target, az, el, distance)
+}
+
+/// Bird's-eye view plus the 12-view ring, or for [`Rig::Narrow`] the axis view plus the circle.
 pub fn train_views(
     k: Intrinsics,
     centre: DVec3,
@@ -107,6 +143,16 @@ pub fn train_views(
     rng: &mut impl rand::Rng,
 ) -> (Vec<Camera>, RingInfo) {
     let info = ring_info(rig, rng);
+    if let Some(radius) = info.narrow_radius_deg {
+        let axis = (info.ring_azimuth0_deg, info.ring_elevation_deg);
+        let d = info.ring_distance_m;
+        let mut cams = vec![orbit(k, centre, axis.0, axis.1, d)];
+        cams.extend((0..RING_VIEWS).map(|i| {
+            let phi = (30.0 * i as f64).to_radians();
+            off_axis(k, centre, axis, radius, phi, d)
+        }));
+        return (cams, info);
+    }
     let top = Camera::look_at(
         k,
         centre + DVec3::new(0.0, 0.0, info.birdseye_height_m),
@@ -126,12 +172,31 @@ pub fn train_views(
     (cams, info)
 }
 
-/// `n` random views on the upper hemisphere.
-pub fn test_views(k: Intrinsics, centre: DVec3, n: u32, rng: &mut impl rand::Rng) -> Vec<Camera> {
+/// `n` random views on the upper hemisphere or, for a narrow rig (`ring.narrow_radius_deg`), within
+/// [`NARROW_TEST_RADIUS_DEG`] of its axis (uniform over that disc of directions).
+pub fn test_views(
+    k: Intrinsics,
+    centre: DVec3,
+    n: u32,
+    ring: &RingInfo,
+    rng: &mut impl rand::Rng,
+) -> Vec<Camera> {
     (0..n)
         .map(|_| {
-            let az = rng.random_range(0.0..360.0);
-            let el = rng.random_range(TEST_ELEVATION_DEG.0..TEST_ELEVATION_DEG.1);
+            let (az, el) = match ring.narrow_radius_deg {
+                None => (
+                    rng.random_range(0.0..360.0),
+                    rng.random_range(TEST_ELEVATION_DEG.0..TEST_ELEVATION_DEG.1),
+                ),
+                Some(_) => (ring.ring_azimuth0_deg, ring.ring_elevation_deg),
+            };
+            let (radius, phi) = match ring.narrow_radius_deg {
+                None => (0.0, 0.0),
+                Some(_) => (
+                    NARROW_TEST_RADIUS_DEG * rng.random_range(0.0f64..1.0).sqrt(),
+                    rng.random_range(0.0..std::f64::consts::TAU),
+                ),
+            };
             let dist = rng.random_range(TEST_DISTANCE_M.0..TEST_DISTANCE_M.1);
             let j = TEST_TARGET_JITTER_M;
             let target = centre
@@ -140,7 +205,7 @@ pub fn test_views(k: Intrinsics, centre: DVec3, n: u32, rng: &mut impl rand::Rng
                     rng.random_range(-j[1]..j[1]),
                     rng.random_range(-j[2]..j[2]),
                 );
-            orbit(k, target, az, el, dist)
+            off_axis(k, target, (az, el), radius, phi, dist)
         })
         .collect()
 }
@@ -188,6 +253,41 @@ mod tests {
                 assert!((v.length() - info.ring_distance_m).abs() < 1e-9);
                 let el = (v.z / v.length()).asin().to_degrees();
                 assert!((el - info.ring_elevation_deg).abs() < 1e-9);
+            }
+        }
+    }
+
+    /// The angle in degrees between the directions from `centre` to two cameras.
+    fn angle_deg(a: &Camera, b: &Camera, centre: DVec3) -> f64 {
+        let (u, v) = (a.center() - centre, b.center() - centre);
+        (u.dot(v) / (u.length() * v.length()))
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    }
+
+    #[test]
+    fn a_narrow_rig_keeps_every_view_within_its_cone() {
+        let centre = DVec3::new(0.02, -0.01, 0.03);
+        for seed in 0..10 {
+            let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+            let (cams, info) = train_views(intrinsics(320, 240), centre, Rig::Narrow, &mut rng);
+            assert_eq!(cams.len(), 13);
+            assert_eq!(info.narrow_radius_deg, Some(NARROW_TRAIN_RADIUS_DEG));
+            for c in &cams[1..] {
+                let off = angle_deg(c, &cams[0], centre);
+                assert!((off - NARROW_TRAIN_RADIUS_DEG).abs() < 0.3, "{off}");
+                assert!(((c.center() - centre).length() - info.ring_distance_m).abs() < 1e-9);
+            }
+            // Opposite frames of the six odd ones are the circle's diameter apart.
+            let spread = angle_deg(&cams[1], &cams[7], centre);
+            assert!(
+                (spread - 2.0 * NARROW_TRAIN_RADIUS_DEG).abs() < 0.5,
+                "{spread}"
+            );
+            for t in test_views(intrinsics(320, 240), centre, 20, &info, &mut rng) {
+                // The test target is jittered a few cm, which turns the direction by < 4°.
+                assert!(angle_deg(&t, &cams[0], centre) < NARROW_TEST_RADIUS_DEG + 4.0);
             }
         }
     }

@@ -563,8 +563,8 @@ fn draw_cameras(config: &SynthConfig, rest0: &[Pose], rng: &mut impl rand::Rng) 
         / rest0.len() as f64;
     let centre = DVec3::new(mean.x, mean.y, 0.03);
     let (train, ring) = cameras::train_views(k, centre, config.rig, rng);
-    let test0 = cameras::test_views(k, centre, config.test_views, rng);
-    let test1 = cameras::test_views(k, centre, config.test_views, rng);
+    let test0 = cameras::test_views(k, centre, config.test_views, &ring, rng);
+    let test1 = cameras::test_views(k, centre, config.test_views, &ring, rng);
     SceneCameras {
         k,
         centre,
@@ -738,6 +738,7 @@ fn sequence_record(
     params: PhysicsParams,
 ) -> Sequence {
     let k = cams.k;
+    let narrow = cams.ring.narrow_radius_deg.is_some();
     let objects = object_infos(&t0, &t1);
     let removed = &t0.layout.objects[t1.removed];
     Sequence {
@@ -764,7 +765,10 @@ fn sequence_record(
         depth: "planar camera-z depth of first surface at pixel centre (glass surfaces included), 0 = no surface",
         mask_visib_naming: "mask_visib/{frame:06d}_{obj_id:06d}.png (obj_id, not BOP gt index); files only for objects present in that state",
         states: serde_json::json!({
-            "t0": {"train": "train_0 (frame 0 bird's-eye, 1..12 ring)", "test": "test_0"},
+            "t0": {"train": match narrow {
+                false => "train_0 (frame 0 bird's-eye, 1..12 ring)",
+                true => "train_0 (frame 0 along the rig's axis, 1..12 a circle around it)",
+            }, "test": "test_0"},
             "t1": {"train": "train_1 (frame 0 only, same pose as train_0 frame 0)", "test": "test_1"}
         }),
         objects,
@@ -775,7 +779,14 @@ fn sequence_record(
         workspace_center_m: cams.centre.to_array(),
         cameras: CamerasInfo {
             train_ring: cams.ring,
-            test: "uniform azimuth, elevation 20-70 deg, distance 0.45-0.8 m, looking at centre + U(+-4 cm, +-4 cm, +-2 cm)",
+            test: match narrow {
+                false => {
+                    "uniform azimuth, elevation 20-70 deg, distance 0.45-0.8 m, looking at centre + U(+-4 cm, +-4 cm, +-2 cm)"
+                }
+                true => {
+                    "uniform within 10 deg of the rig's axis, distance 0.45-0.8 m, looking at centre + U(+-4 cm, +-4 cm, +-2 cm)"
+                }
+            },
             test_views_per_state: config.test_views,
         },
         environment: t0.layout.env,

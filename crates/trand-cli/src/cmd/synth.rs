@@ -1,6 +1,7 @@
 //! `trand synth`: generate one synthetic transparent-object sequence (BOP layout, exact GT).
 
 use std::path::PathBuf;
+use trand_synth::cameras::Rig;
 use trand_synth::{ExistingOutput, ObjectCount, Preset, Progress, SynthConfig};
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -27,6 +28,28 @@ impl PresetArg {
     }
 }
 
+/// The training rig (see `trand_synth::cameras`).
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum RigArg {
+    /// Bird's-eye view and a 12-view ring at 38° elevation, 0.54 m.
+    Fixed,
+    /// The same ring at an elevation and distance drawn as the reference sequences vary.
+    Varied,
+    /// A robot's stereo rig or wrist camera: every training view within 6° of one axis, test views
+    /// within 10°.
+    Narrow,
+}
+
+impl RigArg {
+    fn rig(self) -> Rig {
+        match self {
+            Self::Fixed => Rig::Fixed,
+            Self::Varied => Rig::Varied,
+            Self::Narrow => Rig::Narrow,
+        }
+    }
+}
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Random seed: the whole sequence is a function of it (and the settings).
@@ -46,6 +69,10 @@ pub struct Args {
     /// Image height in pixels; overrides the preset.
     #[arg(long)]
     height: Option<u32>,
+    /// The training cameras; overrides the preset (`fixed` for default and tiny, `varied` for the
+    /// containers presets).
+    #[arg(long, value_enum)]
+    rig: Option<RigArg>,
     /// Random test views per state; overrides the preset.
     #[arg(long)]
     test_views: Option<u32>,
@@ -66,6 +93,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     c.width = a.width.unwrap_or(c.width);
     c.height = a.height.unwrap_or(c.height);
     c.test_views = a.test_views.unwrap_or(c.test_views);
+    c.rig = a.rig.map_or(c.rig, RigArg::rig);
     c.samples_per_pixel = a.spp.unwrap_or(c.samples_per_pixel);
     c.existing = if a.force {
         ExistingOutput::Replace
