@@ -73,6 +73,8 @@ pub const MAX_BOWL_CROWN: f64 = 1.22;
 /// A bowl flares: its rim is at least this many times wider than its foot (the lowest fifth of its
 /// height). An upturned bowl, a dome, narrows from the table up.
 pub const MIN_BOWL_FLARE: f64 = 1.1;
+/// A hull starting this high above the table (m) stands on another object (see [`Profile::of`]).
+pub const RAISED_M: f64 = 0.01;
 /// Largest lean of the axis (horizontal drift of the slice centres per unit height) of an upright
 /// object: tan 10°.
 pub const MAX_LEAN: f64 = 0.18;
@@ -180,14 +182,32 @@ impl Profile {
             let k = (((p.z - z0) / VOXEL_M).floor() as usize).min(slices - 1);
             by_slice[k].push(p.truncate());
         }
+        let fifth = |f: usize| {
+            by_slice[f * slices / 5..((f + 1) * slices / 5).max(f * slices / 5 + 1)].concat()
+        };
         let lower = slices.div_ceil(5);
         let base: Vec<DVec2> = by_slice[..lower].concat();
-        let axis = median_point(&base)?;
+        let foot_axis = median_point(&base)?;
         // The middle fifth, below any roof (whose voxels lean towards the cameras off the rig's axis).
-        let middle = by_slice[2 * slices / 5..(3 * slices / 5).max(2 * slices / 5 + 1)].concat();
-        let middle_centre = median_point(&middle).unwrap_or(axis);
+        let middle_centre = median_point(&fifth(2)).unwrap_or(foot_axis);
         let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
-        let lean = (middle_centre - axis).length() / (0.4 * height);
+        let foot_lean = (middle_centre - foot_axis).length() / (0.4 * height);
+        // Where a raised object's foot hull mixes with what it stands on (a bowl on an upturned
+        // tumbler), the lowest fifth's centre is off the axis: such an object that leans by its foot
+        // only is judged, and centred, by its second fifth. On the table, a foot leaning alone is
+        // left leaning: a spheroid's hull under boundary errors would pass for a bowl's.
+        let raised = z0 > RAISED_M;
+        let (axis, lean) = match median_point(&fifth(1)) {
+            Some(c) if raised && foot_lean > MAX_LEAN => {
+                let above = (middle_centre - c).length() / (0.2 * height);
+                if above <= MAX_LEAN {
+                    (c, above)
+                } else {
+                    (foot_axis, foot_lean)
+                }
+            }
+            _ => (foot_axis, foot_lean),
+        };
         // The hull ends at its first empty slice: voxels above a gap are strays (label noise at
         // occlusions), not the object's top.
         let end = by_slice.iter().position(|s| s.is_empty()).unwrap_or(slices);
