@@ -4,9 +4,10 @@
 //!
 //! `cargo run --release -p trand-pipeline --example vessel_tops -- SEQ...`
 
-use glam::DVec3;
-use trand_pipeline::openings::{Profile, Top, object_voxels};
-use trand_pipeline::reconstruct::{ReconstructOptions, find_openings, openings_box, train_views};
+use trand_pipeline::openings::{Profile, Top};
+use trand_pipeline::reconstruct::{
+    ReconstructOptions, find_openings, openings_box, openings_hull, train_views,
+};
 
 fn kinds(root: &std::path::Path) -> Vec<(u64, String)> {
     let Ok(text) = std::fs::read_to_string(root.join("sequence.json")) else {
@@ -43,7 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let kinds = kinds(&seq.root);
         let b = openings_box(&views)?;
-        let hull = object_voxels(&views, DVec3::from_array(b.min), DVec3::from_array(b.max));
+        let (hull, baseline) = openings_hull(&views, &opts)?;
         for t in tops {
             let kind = kinds
                 .iter()
@@ -57,7 +58,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 } => format!("OPEN {shape:?} rim z {rim_z:.3} r {rim_radius:.3}"),
                 Top::Closed { because } => format!("closed {because:?}"),
             };
-            let shape = hull.get(&t.object_id).and_then(|v| Profile::of(v)).map_or(
+            let shape = hull.get(&t.object_id).and_then(|v| Profile::seen_from(v, baseline)).map_or(
                 String::new(),
                 |p| {
                     let r = &p.radius;
@@ -82,14 +83,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
             println!("{arg} {:>2} {kind:<22} {decision} {shape}", t.object_id);
             if std::env::var_os("PROFILE").is_some()
-                && let Some(p) = hull.get(&t.object_id).and_then(|v| Profile::of(v))
+                && let Some(p) = hull
+                    .get(&t.object_id)
+                    .and_then(|v| Profile::seen_from(v, baseline))
             {
                 let r: Vec<String> = p
                     .radius
                     .iter()
                     .map(|r| format!("{:.0}", r * 1000.0))
                     .collect();
-                println!("    R(mm) from z0: {}", r.join(" "));
+                println!(
+                    "    axis ({:.1}, {:.1}) mm, R(mm) from z0: {}",
+                    p.axis[0] * 1e3,
+                    p.axis[1] * 1e3,
+                    r.join(" ")
+                );
             }
         }
     }

@@ -21,6 +21,14 @@
 //! margin inside the profile above the floor. The training views then have to explain the opening with
 //! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
 //!
+//! **From one side** (a narrow baseline, [`Baseline::Narrow`]) the hull is the support prior's (see
+//! [`crate::support`]): exact at each object's front, stretched behind it over the table it hides.
+//! The axis is read from the slices' fronts ([`narrow`]) and the roof over a rim, a lens shrinking
+//! from the back, rises twice as high as the ring's; the rest of the decision is the same. An object
+//! standing behind a vessel and rising above its rim claims the hull over the opening, which then
+//! counts as closed ([`Closed::Supports`]): the cost of not carving an upturned tumbler that carries
+//! a glass.
+//!
 //! Closed tops are never carved: spheroids, bottles and domes (an upturned bowl) narrow towards the
 //! top, wine glasses' bowls are wider than their rim, and an object that carries another over its
 //! top is closed.
@@ -35,6 +43,30 @@ use serde::Serialize;
 use trand_core::Camera;
 
 use crate::targets::TrainView;
+
+pub mod narrow;
+
+/// Where the training views look from, which decides how a hull is read (see [`Profile::seen_from`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Baseline {
+    /// Views around the objects (the paper's ring): the hull is the object's, up to a roof.
+    Wide,
+    /// Views within a few degrees of one another, looking along `toward` (horizontal, unit), with
+    /// the support prior applied to the hull: exact at the front only ([`narrow`]).
+    Narrow { toward: DVec2 },
+}
+
+impl Baseline {
+    /// How many times `R tan e` the hull rises over a flat rim of radius `R`: the ring's silhouette
+    /// planes meet over the axis; from one side the lens over the rim shrinks from the back only,
+    /// over the rim's whole diameter.
+    fn roof_rise(self) -> f64 {
+        match self {
+            Baseline::Wide => 1.0,
+            Baseline::Narrow { .. } => 2.0,
+        }
+    }
+}
 
 /// Edge of a hull voxel (m): well below a wall margin, and a 0.7 m box stays under 20 M voxels.
 pub const VOXEL_M: f64 = 0.002;
@@ -102,6 +134,16 @@ const APEX_M: f64 = 2.0 * VOXEL_M;
 
 /// Labelled voxel centres of the training masks' visual hull, per object id.
 pub fn object_voxels(views: &[TrainView], min: DVec3, max: DVec3) -> BTreeMap<u16, Vec<DVec3>> {
+    object_voxels_where(views, min, max, |_| true)
+}
+
+/// [`object_voxels`] of the points `keep` accepts (the support prior's test, on a narrow baseline).
+pub fn object_voxels_where(
+    views: &[TrainView],
+    min: DVec3,
+    max: DVec3,
+    keep: impl Fn(DVec3) -> bool + Sync,
+) -> BTreeMap<u16, Vec<DVec3>> {
     let n = |k: usize| (((max[k] - min[k]) / VOXEL_M).ceil() as usize).max(1);
     let (nx, ny, nz) = (n(0), n(1), n(2));
     let columns: Vec<Vec<(u16, DVec3)>> = (0..nx * ny)
@@ -111,7 +153,7 @@ pub fn object_voxels(views: &[TrainView], min: DVec3, max: DVec3) -> BTreeMap<u1
             (0..nz)
                 .filter_map(|iz| {
                     let p = min + (DVec3::new(ix as f64, iy as f64, iz as f64) + 0.5) * VOXEL_M;
-                    label_of(views, p).map(|id| (id, p))
+                    label_of(views, p).filter(|_| keep(p)).map(|id| (id, p))
                 })
                 .collect()
         })
@@ -169,8 +211,15 @@ pub struct Profile {
 }
 
 impl Profile {
-    /// Profile of `voxels` (world positions of one object's hull voxels).
+    /// Profile of `voxels` (world positions of one object's hull voxels) seen from around it.
     pub fn of(voxels: &[DVec3]) -> Option<Self> {
+        Self::seen_from(voxels, Baseline::Wide)
+    }
+
+    /// Profile of `voxels` whose hull the views of `baseline` carved. From one side the axis is
+    /// read from the slices' fronts ([`narrow`]), and the footprint's depth, not seen, is not
+    /// measured (elongation 1).
+    pub fn seen_from(voxels: &[DVec3], baseline: Baseline) -> Option<Self> {
         if voxels.len() < MIN_VOXELS {
             return None;
         }
@@ -182,31 +231,18 @@ impl Profile {
             let k = (((p.z - z0) / VOXEL_M).floor() as usize).min(slices - 1);
             by_slice[k].push(p.truncate());
         }
-        let fifth = |f: usize| {
-            by_slice[f * slices / 5..((f + 1) * slices / 5).max(f * slices / 5 + 1)].concat()
-        };
-        let lower = slices.div_ceil(5);
-        let base: Vec<DVec2> = by_slice[..lower].concat();
-        let foot_axis = median_point(&base)?;
-        // The middle fifth, below any roof (whose voxels lean towards the cameras off the rig's axis).
-        let middle_centre = median_point(&fifth(2)).unwrap_or(foot_axis);
         let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
-        let foot_lean = (middle_centre - foot_axis).length() / (0.4 * height);
-        // Where a raised object's foot hull mixes with what it stands on (a bowl on an upturned
-        // tumbler), the lowest fifth's centre is off the axis: such an object that leans by its foot
-        // only is judged, and centred, by its second fifth. On the table, a foot leaning alone is
-        // left leaning: a spheroid's hull under boundary errors would pass for a bowl's.
-        let raised = z0 > RAISED_M;
-        let (axis, lean) = match median_point(&fifth(1)) {
-            Some(c) if raised && foot_lean > MAX_LEAN => {
-                let above = (middle_centre - c).length() / (0.2 * height);
-                if above <= MAX_LEAN {
-                    (c, above)
-                } else {
-                    (foot_axis, foot_lean)
-                }
+        // The foot (the lowest fifth, rounded up), the second and the middle fifth.
+        let fifth =
+            |f: usize| &by_slice[f * slices / 5..((f + 1) * slices / 5).max(f * slices / 5 + 1)];
+        let parts = [&by_slice[..slices.div_ceil(5)], fifth(1), fifth(2)];
+        let (axis, lean) = match baseline {
+            Baseline::Wide => wide_axis(parts, height, z0)?,
+            Baseline::Narrow { toward } => {
+                let foot = narrow::centre(parts[0], toward)?;
+                let middle = narrow::centre(parts[2], toward).unwrap_or(foot);
+                (foot, (middle - foot).length() / (0.4 * height))
             }
-            _ => (foot_axis, foot_lean),
         };
         // The hull ends at its first empty slice: voxels above a gap are strays (label noise at
         // occlusions), not the object's top.
@@ -215,7 +251,10 @@ impl Profile {
             .iter()
             .map(|s| sector_radius(s, axis))
             .collect();
-        let elongation = elongation(&by_slice[..end].concat());
+        let elongation = match baseline {
+            Baseline::Wide => elongation(&by_slice[..end].concat()),
+            Baseline::Narrow { .. } => 1.0,
+        };
         Some(Self {
             elongation,
             axis: axis.to_array(),
@@ -264,6 +303,34 @@ impl Profile {
     pub fn slice_top(&self, k: usize) -> f64 {
         self.z0 + (k + 1) as f64 * VOXEL_M
     }
+}
+
+/// The axis and lean of a hull seen from around it, from its foot, second and middle fifths by
+/// height (`parts`): the foot's centre, and the drift from it to the middle fifth's centre per unit
+/// `height`.
+///
+/// Where a raised object's foot hull mixes with what it stands on (a bowl on an upturned
+/// tumbler), the lowest fifth's centre is off the axis: such an object (its hull starting `z0`
+/// above [`RAISED_M`]) that leans by its foot only is judged, and centred, by its second fifth. On
+/// the table, a foot leaning alone is left leaning: a spheroid's hull under boundary errors would
+/// pass for a bowl's.
+fn wide_axis(parts: [&[Vec<DVec2>]; 3], height: f64, z0: f64) -> Option<(DVec2, f64)> {
+    let foot_axis = median_point(&parts[0].concat())?;
+    // The middle fifth, below any roof (whose voxels lean towards the cameras off the rig's axis).
+    let middle_centre = median_point(&parts[2].concat()).unwrap_or(foot_axis);
+    let foot_lean = (middle_centre - foot_axis).length() / (0.4 * height);
+    let raised = z0 > RAISED_M;
+    Some(match median_point(&parts[1].concat()) {
+        Some(c) if raised && foot_lean > MAX_LEAN => {
+            let above = (middle_centre - c).length() / (0.2 * height);
+            if above <= MAX_LEAN {
+                (c, above)
+            } else {
+                (foot_axis, foot_lean)
+            }
+        }
+        _ => (foot_axis, foot_lean),
+    })
 }
 
 /// Component-wise median of points.
@@ -444,11 +511,12 @@ pub fn classify(
     hull: &BTreeMap<u16, Vec<DVec3>>,
     cameras: &[Camera],
     ceiling: f64,
+    baseline: Baseline,
 ) -> (Vec<Opening>, Vec<VesselTop>) {
     let mut openings = Vec::new();
     let mut report = Vec::new();
     for (&id, voxels) in hull {
-        let top = match open_top(id, voxels, hull, cameras, ceiling) {
+        let top = match open_top(id, voxels, hull, cameras, (ceiling, baseline)) {
             Ok(o) => {
                 let t = Top::Open {
                     shape: o.shape,
@@ -485,7 +553,12 @@ pub enum Shape {
 }
 
 /// Which open vessel the profile below the rim slice `rim` is, or why it is closed.
-fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape, Closed> {
+fn vessel_shape(
+    profile: &Profile,
+    rim: usize,
+    rim_radius: f64,
+    crown_limit: f64,
+) -> Result<Shape, Closed> {
     let r = &profile.radius[..=rim];
     // The cup's widest slice, in the upper half (a wine glass's foot may be as wide as its bowl).
     let half = r.len() / 2;
@@ -527,7 +600,7 @@ fn vessel_shape(profile: &Profile, rim: usize, rim_radius: f64) -> Result<Shape,
     };
     if straight(0.1, MIN_ASPECT) || straight(HIDDEN_FOOT, MIN_HIDDEN_FOOT_ASPECT) {
         Ok(Shape::Straight)
-    } else if profile.crown() <= MAX_BOWL_CROWN && rim_radius >= MIN_BOWL_FLARE * foot_radius(r) {
+    } else if profile.crown() <= crown_limit && rim_radius >= MIN_BOWL_FLARE * foot_radius(r) {
         Ok(Shape::Bowl)
     } else {
         Err(Closed::RoundTop)
@@ -648,9 +721,9 @@ fn open_top(
     voxels: &[DVec3],
     hull: &BTreeMap<u16, Vec<DVec3>>,
     cameras: &[Camera],
-    ceiling: f64,
+    (ceiling, baseline): (f64, Baseline),
 ) -> Result<Opening, Closed> {
-    let profile = Profile::of(voxels).ok_or(Closed::TooSmall)?;
+    let profile = Profile::seen_from(voxels, baseline).ok_or(Closed::TooSmall)?;
     if profile.slice_top(profile.radius.len() - 1) > ceiling - VOXEL_M {
         return Err(Closed::Truncated);
     }
@@ -671,12 +744,14 @@ fn open_top(
     if profile.elongation > MAX_ELONGATION {
         return Err(Closed::NotRound);
     }
-    let shape = vessel_shape(&profile, rim, rim_radius)?;
+    // The bowl's crown is its roof's height over its radius (see [`MAX_BOWL_CROWN`]).
+    let crown_limit = MAX_BOWL_CROWN + (baseline.roof_rise() - 1.0) * elevation.tan();
+    let shape = vessel_shape(&profile, rim, rim_radius, crown_limit)?;
     let rim_z = profile.slice_top(rim);
     // Above a flat rim the hull is only the roof, at most `R tan e` high (the silhouette planes meet
     // over the axis); a bottle's shoulder is followed by a neck that stands higher.
     let above = profile.top_slice().saturating_sub(rim) as f64 * VOXEL_M;
-    if above > ROOF_SLACK * rim_radius * elevation.tan() + 2.0 * VOXEL_M {
+    if above > ROOF_SLACK * rim_radius * baseline.roof_rise() * elevation.tan() + 2.0 * VOXEL_M {
         return Err(Closed::NarrowTop);
     }
     // Another object resting above the rim: centred, the top is closed; leaning on the rim from

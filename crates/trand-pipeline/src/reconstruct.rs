@@ -21,7 +21,7 @@ use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_f
 
 use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
-use crate::openings::{Opening, VesselTop};
+use crate::openings::{Baseline, Opening, VesselTop};
 use crate::support::{Support, SupportPrior};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
@@ -352,13 +352,49 @@ pub fn find_openings(
         return Ok((Vec::new(), Vec::new()));
     }
     let b = openings_box(views)?;
-    let hull = crate::openings::object_voxels(
-        views,
+    let (hull, baseline) = openings_hull(views, opts)?;
+    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+    Ok(crate::openings::classify(&hull, &cams, b.max[2], baseline))
+}
+
+/// The labelled hull the opening prior reads, in [`openings_box`], and where its views look from:
+/// on a narrow baseline (the support prior applied) the hull keeps the support prior's points.
+pub fn openings_hull(
+    views: &[TrainView],
+    opts: &ReconstructOptions,
+) -> Result<(ObjectHull, Baseline)> {
+    let b = openings_box(views)?;
+    let (min, max) = (
         glam::DVec3::from_array(b.min),
         glam::DVec3::from_array(b.max),
     );
-    let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
-    Ok(crate::openings::classify(&hull, &cams, b.max[2]))
+    Ok(match support_test(views, opts)? {
+        Some(support) => {
+            let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
+            (
+                crate::openings::object_voxels_where(views, min, max, |p| support.holds(p)),
+                Baseline::Narrow {
+                    toward: mean_heading(&cams, 0.5 * (min + max)),
+                },
+            )
+        }
+        None => (
+            crate::openings::object_voxels(views, min, max),
+            Baseline::Wide,
+        ),
+    })
+}
+
+/// Hull voxel centres per object id ([`crate::openings::object_voxels`]).
+pub type ObjectHull = std::collections::BTreeMap<u16, Vec<glam::DVec3>>;
+
+/// The horizontal unit direction the cameras look along towards `target`, averaged.
+fn mean_heading(cams: &[trand_core::Camera], target: glam::DVec3) -> glam::DVec2 {
+    cams.iter()
+        .filter_map(|c| (target - c.center()).truncate().try_normalize())
+        .sum::<glam::DVec2>()
+        .try_normalize()
+        .unwrap_or(glam::DVec2::X)
 }
 
 /// The training views with their settled pose corrections, when the corrections settled and move

@@ -4,7 +4,10 @@
 use glam::DVec3;
 use trand_core::{Camera, Intrinsics};
 use trand_pipeline::TrainView;
-use trand_pipeline::openings::{Closed, Opening, Shape, Top, VesselTop, classify, object_voxels};
+use trand_pipeline::openings::{
+    Baseline, Closed, Opening, Shape, Top, VesselTop, classify, object_voxels, object_voxels_where,
+};
+use trand_pipeline::support::{Support, SupportPrior};
 
 /// A solid of revolution about the vertical axis through `at`: `radius(h)` for `h` in `[0, height]`
 /// above `base` (the height of its lowest point), 0 outside.
@@ -81,8 +84,37 @@ fn ids(cam: &Camera, solids: &[Solid]) -> Vec<u16> {
 }
 
 fn views(solids: &[Solid]) -> Vec<TrainView> {
-    ring()
-        .into_iter()
+    views_from(ring(), solids)
+}
+
+/// Six views within 6° of one viewing axis (azimuth 0.3 rad, the ring's elevation): a stereo rig or
+/// a wrist camera moved a few centimetres.
+fn narrow_rig() -> Vec<Camera> {
+    let (dist, elev) = (0.56f64, 41.5f64.to_radians());
+    (0..6)
+        .map(|i| {
+            let phi = i as f64 * std::f64::consts::TAU / 6.0;
+            let (az, el) = (
+                0.3 + 6f64.to_radians() * phi.cos(),
+                elev + 6f64.to_radians() * phi.sin(),
+            );
+            let eye = DVec3::new(
+                dist * el.cos() * az.cos(),
+                dist * el.cos() * az.sin(),
+                dist * el.sin(),
+            );
+            Camera::look_at(
+                Intrinsics::centered(300.0, 320, 240),
+                eye,
+                DVec3::new(0.0, 0.0, 0.03),
+                DVec3::Z,
+            )
+        })
+        .collect()
+}
+
+fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
+    cams.into_iter()
         .enumerate()
         .map(|(i, camera)| TrainView {
             name: format!("{i}"),
@@ -126,7 +158,7 @@ fn classify_under(solids: &[Solid], ceiling: f64) -> (Vec<Opening>, Vec<VesselTo
         DVec3::new(0.2, 0.2, ceiling),
     );
     let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
-    classify(&hull, &cams, ceiling)
+    classify(&hull, &cams, ceiling, Baseline::Wide)
 }
 
 fn solid(at: [f64; 2], base: f64, height: f64, radius: impl Fn(f64) -> f64 + 'static) -> Solid {
@@ -324,6 +356,58 @@ fn a_neighbour_standing_close_does_not_raise_the_floor() {
         .find(|o| o.rim_z < 0.1)
         .expect("the tumbler is open");
     assert!(o.floor_z < 0.02, "floor at {:.3} m", o.floor_z);
+}
+
+/// The opening prior on `solids` seen from [`narrow_rig`], as a run applies it: the hull restricted
+/// by the support prior, read from its front.
+fn classify_from_one_side(solids: &[Solid]) -> (Vec<Opening>, Vec<VesselTop>) {
+    let views = views_from(narrow_rig(), solids);
+    let support = Support::new(&views, SupportPrior::Auto, DVec3::ZERO).expect("a narrow baseline");
+    let hull = object_voxels_where(
+        &views,
+        DVec3::new(-0.2, -0.2, 0.0),
+        DVec3::new(0.2, 0.2, 0.2),
+        |p| support.holds(p),
+    );
+    let cams: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+    let toward = -glam::DVec2::new(0.3f64.cos(), 0.3f64.sin());
+    classify(&hull, &cams, 0.2, Baseline::Narrow { toward })
+}
+
+#[test]
+fn from_one_side_an_upright_tumbler_is_open_and_a_sphere_and_a_bottle_are_not() {
+    let (openings, tops) = classify_from_one_side(&[
+        tumbler([0.0, 0.09]),
+        solid([0.0, 0.0], 0.0, 0.06, |h| {
+            (0.03f64.powi(2) - (h - 0.03).powi(2)).max(0.0).sqrt()
+        }),
+        solid([0.0, -0.09], 0.0, 0.14, |h| {
+            if h < 0.08 {
+                0.028
+            } else if h < 0.105 {
+                0.028 - 0.016 * (h - 0.08) / 0.025
+            } else {
+                0.012
+            }
+        }),
+    ]);
+    let (shape, rim_z, rim_r) =
+        open_shape(&tops[0].top).unwrap_or_else(|| panic!("tumbler: {:?}", tops[0]));
+    assert_eq!(shape, Shape::Straight);
+    // The lens over the rim narrows slowly at first: the rim is found up to a centimetre high,
+    // which the carving of the inside covers.
+    assert!((0.086..0.1).contains(&rim_z), "rim at {rim_z}");
+    assert!((rim_r - 0.034).abs() < 0.005, "rim radius {rim_r}");
+    let tops: Vec<Top> = tops.into_iter().map(|t| t.top).collect();
+    assert!(open_shape(&tops[1]).is_none(), "sphere: {:?}", tops[1]);
+    assert!(open_shape(&tops[2]).is_none(), "bottle: {:?}", tops[2]);
+    // The inside and the lid are carved, about the tumbler's own axis; its walls are not.
+    let o = &openings[0];
+    assert!(o.carves([0.0, 0.09, 0.05]), "inside");
+    assert!(o.carves([0.0, 0.09, 0.095]), "lid");
+    for (x, y) in [(0.031, 0.09), (-0.031, 0.09), (0.0, 0.121), (0.0, 0.059)] {
+        assert!(!o.carves([x, y, 0.05]), "wall at ({x}, {y})");
+    }
 }
 
 /// Voxel centres of a vertical cylinder of radius 4 cm and height 8 cm standing at height `base`,
