@@ -239,8 +239,9 @@ impl Profile {
         let (axis, lean) = match baseline {
             Baseline::Wide => wide_axis(parts, height, z0)?,
             Baseline::Narrow { toward } => {
-                let foot = narrow::centre(parts[0], toward)?;
-                let middle = narrow::centre(parts[2], toward).unwrap_or(foot);
+                let centre = |slices| median_point(&narrow::slice_centres(slices, toward, VOXEL_M));
+                let foot = centre(parts[0])?;
+                let middle = centre(parts[2]).unwrap_or(foot);
                 (foot, (middle - foot).length() / (0.4 * height))
             }
         };

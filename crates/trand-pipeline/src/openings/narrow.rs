@@ -14,14 +14,12 @@
 
 use glam::DVec2;
 
-use super::VOXEL_M;
+/// Voxels within this many voxel edges of a slice's front are its front-most ones.
+const FRONT_BAND_VOXELS: f64 = 1.5;
 
-/// Voxels this close to a slice's front (m) are its front-most ones.
-const FRONT_BAND_M: f64 = 1.5 * VOXEL_M;
-
-/// The centre of one slice (horizontal voxel centres) seen along `toward` (horizontal, unit), or
-/// `None` for an empty slice.
-fn slice_centre(pts: &[DVec2], toward: DVec2) -> Option<DVec2> {
+/// The centre of one slice (horizontal centres of voxels of edge `voxel`) seen along `toward`
+/// (horizontal, unit), or `None` for an empty slice.
+fn slice_centre(pts: &[DVec2], toward: DVec2, voxel: f64) -> Option<DVec2> {
     let across = toward.perp();
     let depth = |p: &DVec2| p.dot(toward);
     let front = pts.iter().map(depth).fold(f64::INFINITY, f64::min);
@@ -30,7 +28,7 @@ fn slice_centre(pts: &[DVec2], toward: DVec2) -> Option<DVec2> {
     }
     let mut band: Vec<f64> = pts
         .iter()
-        .filter(|p| depth(p) <= front + FRONT_BAND_M)
+        .filter(|p| depth(p) <= front + FRONT_BAND_VOXELS * voxel)
         .map(|p| p.dot(across))
         .collect();
     band.sort_by(f64::total_cmp);
@@ -41,22 +39,23 @@ fn slice_centre(pts: &[DVec2], toward: DVec2) -> Option<DVec2> {
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), u| {
             (lo.min(u), hi.max(u))
         });
-    let radius = (hi - line).min(line - lo).max(0.0) + 0.5 * VOXEL_M;
-    Some(across * line + toward * (front - 0.5 * VOXEL_M + radius))
+    let radius = (hi - line).min(line - lo).max(0.0) + 0.5 * voxel;
+    Some(across * line + toward * (front - 0.5 * voxel + radius))
 }
 
-/// Component-wise median of the centres of `slices` seen along `toward`.
-pub(super) fn centre(slices: &[Vec<DVec2>], toward: DVec2) -> Option<DVec2> {
-    let centres: Vec<DVec2> = slices
+/// The centres of the non-empty `slices` (voxels of edge `voxel`) seen along `toward`.
+pub(super) fn slice_centres(slices: &[Vec<DVec2>], toward: DVec2, voxel: f64) -> Vec<DVec2> {
+    slices
         .iter()
-        .filter_map(|s| slice_centre(s, toward))
-        .collect();
-    super::median_point(&centres)
+        .filter_map(|s| slice_centre(s, toward, voxel))
+        .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const VOXEL_M: f64 = 0.002;
 
     /// Voxel centres of a disc of radius `r` about `c`, swept `behind` m along `toward`.
     fn swept_disc(c: DVec2, r: f64, behind: f64, toward: DVec2) -> Vec<DVec2> {
@@ -79,7 +78,7 @@ mod tests {
     fn a_disc_with_the_table_it_hides_is_centred_at_the_disc() {
         let toward = DVec2::new(0.6, 0.8);
         let c = DVec2::new(0.01, -0.02);
-        let got = slice_centre(&swept_disc(c, 0.03, 0.08, toward), toward).unwrap();
+        let got = slice_centre(&swept_disc(c, 0.03, 0.08, toward), toward, VOXEL_M).unwrap();
         assert!((got - c).length() < 1.5 * VOXEL_M, "{got:?} against {c:?}");
     }
 
@@ -94,7 +93,7 @@ mod tests {
                 .into_iter()
                 .filter(|p| p.y > 0.03),
         );
-        let got = slice_centre(&pts, toward).unwrap();
+        let got = slice_centre(&pts, toward, VOXEL_M).unwrap();
         assert!((got - c).length() < 1.5 * VOXEL_M, "{got:?}");
     }
 }
