@@ -44,7 +44,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let kinds = kinds(&seq.root);
         let b = openings_box(&views)?;
-        let (hull, baseline) = openings_hull(&views, &opts)?;
+        let (hull, baseline) = openings_hull(&views, &opts, &b)?;
         for t in tops {
             let kind = kinds
                 .iter()

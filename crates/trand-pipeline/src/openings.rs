@@ -517,7 +517,7 @@ pub fn classify(
     let mut openings = Vec::new();
     let mut report = Vec::new();
     for (&id, voxels) in hull {
-        let top = match open_top(id, voxels, hull, cameras, (ceiling, baseline)) {
+        let top = match open_top(id, voxels, hull, cameras, ceiling, baseline) {
             Ok(o) => {
                 let t = Top::Open {
                     shape: o.shape,
@@ -722,7 +722,8 @@ fn open_top(
     voxels: &[DVec3],
     hull: &BTreeMap<u16, Vec<DVec3>>,
     cameras: &[Camera],
-    (ceiling, baseline): (f64, Baseline),
+    ceiling: f64,
+    baseline: Baseline,
 ) -> Result<Opening, Closed> {
     let profile = Profile::seen_from(voxels, baseline).ok_or(Closed::TooSmall)?;
     if profile.slice_top(profile.radius.len() - 1) > ceiling - VOXEL_M {

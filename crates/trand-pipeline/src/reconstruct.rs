@@ -352,18 +352,19 @@ pub fn find_openings(
         return Ok((Vec::new(), Vec::new()));
     }
     let b = openings_box(views)?;
-    let (hull, baseline) = openings_hull(views, opts)?;
+    let (hull, baseline) = openings_hull(views, opts, &b)?;
     let cams: Vec<_> = views.iter().map(|v| v.camera).collect();
     Ok(crate::openings::classify(&hull, &cams, b.max[2], baseline))
 }
 
-/// The labelled hull the opening prior reads, in [`openings_box`], and where its views look from:
-/// on a narrow baseline (the support prior applied) the hull keeps the support prior's points.
+/// The labelled hull the opening prior reads, in `b` (the [`openings_box`]), and where its views
+/// look from: on a narrow baseline (the support prior applied) the hull keeps the support prior's
+/// points.
 pub fn openings_hull(
     views: &[TrainView],
     opts: &ReconstructOptions,
+    b: &SlabBox,
 ) -> Result<(ObjectHull, Baseline)> {
-    let b = openings_box(views)?;
     let (min, max) = (
         glam::DVec3::from_array(b.min),
         glam::DVec3::from_array(b.max),

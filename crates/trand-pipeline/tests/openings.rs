@@ -33,21 +33,34 @@ impl Solid {
     }
 }
 
+/// A camera 0.56 m from the scene at azimuth `az` and elevation `el` (radians), looking at a point
+/// 3 cm above the origin.
+fn camera_at(az: f64, el: f64) -> Camera {
+    let dist = 0.56;
+    let eye = DVec3::new(
+        dist * el.cos() * az.cos(),
+        dist * el.cos() * az.sin(),
+        dist * el.sin(),
+    );
+    Camera::look_at(
+        Intrinsics::centered(300.0, 320, 240),
+        eye,
+        DVec3::new(0.0, 0.0, 0.03),
+        DVec3::Z,
+    )
+}
+
+/// The Blender sequences' elevation (radians).
+fn ring_elevation() -> f64 {
+    41.5f64.to_radians()
+}
+
 fn ring() -> Vec<Camera> {
-    let (dist, elev) = (0.56f64, 41.5f64.to_radians());
     (0..6)
         .map(|i| {
-            let az = i as f64 * std::f64::consts::TAU / 6.0 + 0.3;
-            let eye = DVec3::new(
-                dist * elev.cos() * az.cos(),
-                dist * elev.cos() * az.sin(),
-                dist * elev.sin(),
-            );
-            Camera::look_at(
-                Intrinsics::centered(300.0, 320, 240),
-                eye,
-                DVec3::new(0.0, 0.0, 0.03),
-                DVec3::Z,
+            camera_at(
+                i as f64 * std::f64::consts::TAU / 6.0 + 0.3,
+                ring_elevation(),
             )
         })
         .collect()
@@ -90,24 +103,12 @@ fn views(solids: &[Solid]) -> Vec<TrainView> {
 /// Six views within 6° of one viewing axis (azimuth 0.3 rad, the ring's elevation): a stereo rig or
 /// a wrist camera moved a few centimetres.
 fn narrow_rig() -> Vec<Camera> {
-    let (dist, elev) = (0.56f64, 41.5f64.to_radians());
     (0..6)
         .map(|i| {
             let phi = i as f64 * std::f64::consts::TAU / 6.0;
-            let (az, el) = (
+            camera_at(
                 0.3 + 6f64.to_radians() * phi.cos(),
-                elev + 6f64.to_radians() * phi.sin(),
-            );
-            let eye = DVec3::new(
-                dist * el.cos() * az.cos(),
-                dist * el.cos() * az.sin(),
-                dist * el.sin(),
-            );
-            Camera::look_at(
-                Intrinsics::centered(300.0, 320, 240),
-                eye,
-                DVec3::new(0.0, 0.0, 0.03),
-                DVec3::Z,
+                ring_elevation() + 6f64.to_radians() * phi.sin(),
             )
         })
         .collect()
