@@ -91,7 +91,7 @@ pub struct UpdateOptions {
 
 /// Reads a `[train]` table as overrides of [`TrainConfig::t1`]: the table's keys (nested tables key by
 /// key) replace those of the refinement's defaults. Plain serde defaults would fill the keys a file
-/// leaves out from [`TrainConfig::default`], the t = 0 optimisation of 1000 iterations.
+/// leaves out from [`TrainConfig::default`], the t = 0 optimisation.
 fn t1_with_overrides<'de, D: serde::Deserializer<'de>>(
     d: D,
 ) -> std::result::Result<TrainConfig, D::Error> {

@@ -268,7 +268,7 @@ def reconstruct(
     intrinsics: ArrayList,
     world_to_camera: ArrayList,
     *,
-    iterations: int = 1000,
+    iterations: int = 850,
     downsample: int = 1,
     seed: int = 0,
     method: str = "trand",
