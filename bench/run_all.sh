@@ -57,7 +57,7 @@ timed() {
 }
 
 time_runs() {
-    for s in seq_101 seq_105; do
+    for s in seq_101 seq_105 seq_108 seq_109; do
         rm -rf "$OUT/time/$s"
         mkdir -p "$OUT/time/$s"
         echo "$s t=0 (defaults):"
