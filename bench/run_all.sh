@@ -7,7 +7,7 @@
 #             resolution): t=0 and t=1, pooled, per sequence, per object and per kind
 # containers  ten `trand synth --preset containers` scenes (seeds 0-9), --downsample 2
 # default     ten `trand synth` scenes (seeds 1000-1009), --downsample 2
-# time        wall, CPU and peak memory of t=0 and of the update on seq_101 and seq_105 (run it on an
+# time        wall, CPU and peak memory of t=0 and of the update on the four public sequences (run it on an
 #             otherwise idle machine)
 # raster      the rasterizer's divan benchmarks
 # mpm         trand's MLS-MPM on the authors' fixture, then the Taichi script beside it when a Python
