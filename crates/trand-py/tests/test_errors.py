@@ -126,8 +126,11 @@ def test_scene_methods_check_their_arguments(scene0, scene1, seq, tmp_path):
 
 
 def test_ctrl_c_interrupts_a_reconstruction(tiny):
+    # A process started in the background by a non-interactive shell inherits SIGINT ignored, and
+    # Python then keeps it ignored: restore the handler an interactive session has.
     script = textwrap.dedent(f"""
-        import sys, time, trand
+        import signal, sys, time, trand
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         seq = trand.load_sequence({str(tiny)!r})
         t0 = seq["train_0"]
         print("ready", flush=True)
