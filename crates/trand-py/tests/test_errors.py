@@ -127,7 +127,7 @@ def test_scene_methods_check_their_arguments(scene0, scene1, seq, tmp_path):
 
 def test_ctrl_c_interrupts_a_reconstruction(tiny):
     # A process started in the background by a non-interactive shell inherits SIGINT ignored, and
-    # Python then keeps it ignored: restore the handler an interactive session has.
+    # Python then keeps it ignored: restore the handler an interactive Python has.
     script = textwrap.dedent(f"""
         import signal, sys, time, trand
         signal.signal(signal.SIGINT, signal.default_int_handler)
