@@ -268,7 +268,7 @@ impl PyScene {
 fn reconstruct(
     py: Python<'_>,
     views: Vec<ViewArgs<'_>>,
-    iterations: u32,
+    iterations: Option<u32>,
     downsample: u32,
     seed: u64,
     method: &str,
@@ -281,7 +281,10 @@ fn reconstruct(
         downsample,
         ..Default::default()
     };
-    opts.train.iterations = iterations;
+    if let Some(n) = iterations {
+        opts.train.iterations = n;
+    }
+    let iterations = opts.train.iterations;
     opts.train.seed = seed;
     opts.init.seed = seed;
     if iterations == 0 {

@@ -542,7 +542,7 @@ impl TrainConfig {
         // One new photograph: its pose is the gauge itself (crate::pose), nothing to refine against.
         c.pose = PoseRefinement::Fixed;
         // At least 40 iterations; a refinement still falling past 1050 densifies there. Stopping
-        // from 60 (after that densification) gave the same depth on nine scenes (BENCHMARKS.md §4).
+        // from 60 (after that densification) gave the same depth on nine scenes (BENCHMARKS.md §1).
         c.early_stop = EarlyStop::Plateau {
             window: 10,
             min_decrease: 0.01,

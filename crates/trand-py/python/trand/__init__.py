@@ -268,7 +268,7 @@ def reconstruct(
     intrinsics: ArrayList,
     world_to_camera: ArrayList,
     *,
-    iterations: int = 850,
+    iterations: Optional[int] = None,
     downsample: int = 1,
     seed: int = 0,
     method: str = "trand",
@@ -283,6 +283,7 @@ def reconstruct(
     rig picks 6 ring views: :func:`load_sequence` returns those). ``identity``: ``"auto"``,
     ``"ids"`` (the masks' ids name the same object in every view) or ``"overlap"`` (per-image ids,
     associated across views). ``method``: ``"trand"``, ``"no-object-loss"`` or ``"plain-2dgs"``.
+    ``iterations``: ``None`` takes ``trand reconstruct``'s default.
     The same seed gives the same scene, bit for bit, as ``trand reconstruct --seed``.
     """
     ims = _as_list("images", images, 3)
@@ -298,7 +299,7 @@ def reconstruct(
     views = [_view(i, ims[i], mks[i], ks[i], ws[i]) for i in range(n)]
     native = _trand.reconstruct(
         views,
-        _int("iterations", iterations, 1, 1_000_000),
+        None if iterations is None else _int("iterations", iterations, 1, 1_000_000),
         _int("downsample", downsample, 1, 64),
         _int("seed", seed, 0, 2**64 - 1),
         _choice("method", method, _METHODS),

@@ -35,7 +35,7 @@ class NativeScene:
 
 def reconstruct(
     views: List[_View],
-    iterations: int,
+    iterations: Optional[int],
     downsample: int,
     seed: int,
     method: str,
