@@ -62,13 +62,13 @@ impl PoseRefinement {
         }
     }
 
-    /// `(rotation, translation)` learning rates at `iteration` of a run ending at `last`, `None` when
-    /// the poses are not stepped then.
     /// Whether the corrections count as settled at `iteration` (never when the poses are fixed).
     pub fn settled(self, iteration: u32) -> bool {
         matches!(self, PoseRefinement::Refine { settled_at, .. } if iteration >= settled_at)
     }
 
+    /// `(rotation, translation)` learning rates at `iteration` of a run ending at `last`, `None` when
+    /// the poses are not stepped then.
     pub fn rates(self, iteration: u32, last: u32) -> Option<(f64, f64)> {
         let PoseRefinement::Refine {
             from_iteration,

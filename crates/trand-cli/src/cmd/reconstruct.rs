@@ -224,8 +224,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         pb.set_message(format!("loss {:.4}  surfels {}", r.loss, r.num_surfels));
         if pb.is_hidden() && r.iteration.is_multiple_of(100) {
             eprintln!(
-                "iteration {}: loss {:.4}, {} surfels",
-                r.iteration, r.loss, r.num_surfels
+                "iteration {}: loss {:.4}, {} surfels, {:.1} s",
+                r.iteration,
+                r.loss,
+                r.num_surfels,
+                pb.elapsed().as_secs_f64()
             );
         }
         if r.iteration.is_multiple_of(every)
