@@ -360,7 +360,9 @@ pub const MAX_COARSE_FACTOR: u32 = 16;
 /// (factor 2) or a sixteenth (factor 4) of the per-pixel work — the rasterizer's tile kernels, SSIM
 /// and the photometric losses — while the per-surfel work is unchanged. The last iterations fit the
 /// training resolution, so the depth read out at native resolution sees native detail. Levels are
-/// shares of the run, so a shorter run keeps the same proportions.
+/// shares of the run, so a shorter run keeps the same proportions. The default trains the last 22 % at
+/// native resolution: an iteration there costs 2.3 times one at half resolution, and the depth a
+/// longer native phase adds is below a tenth of a point (BENCHMARKS.md §1).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResolutionSchedule {
@@ -507,7 +509,7 @@ impl Default for TrainConfig {
             geometry_loss: GeometryLossConfig::default(),
             resolution: ResolutionSchedule::CoarseToFine(vec![
                 ResolutionLevel::new(4, 0.3),
-                ResolutionLevel::new(2, 0.7),
+                ResolutionLevel::new(2, 0.78),
             ]),
             early_stop: EarlyStop::Never,
             pose: PoseRefinement::refine(),
