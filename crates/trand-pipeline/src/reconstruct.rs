@@ -294,7 +294,7 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
                     opts.num_objects,
                     opts.train.background,
                     sup,
-                    factor,
+                    (factor, opts.train.image_loss.boundary_tolerance_px),
                 )
             })
             .collect::<Result<Vec<_>>>()

@@ -41,6 +41,9 @@ pub struct TrainView {
     pub label_counts: Vec<f32>,
     /// Instance id per pixel (after downsampling).
     pub ids: Vec<u16>,
+    /// Background pixels left out of the photometric gradients
+    /// ([`trand_train::losses::band::background_band`]); empty when none are.
+    pub band: Vec<bool>,
 }
 
 /// The training views for a coarse level of a [`trand_train::config::ResolutionSchedule`], same order
@@ -144,14 +147,16 @@ pub fn check_channels(
     Ok(())
 }
 
-/// Builds the targets of one view.
+/// Builds the targets of one view, downsampled by `downsample`; `tolerance_px` is the background
+/// band's radius in native pixels ([`trand_train::config::ImageLossConfig::boundary_tolerance_px`]),
+/// rounded up at the view's resolution.
 pub fn build(
     view: &View,
     channels: &[(u16, usize)],
     num_objects: usize,
     background: [f32; 3],
     supervision: Supervision,
-    downsample: u32,
+    (downsample, tolerance_px): (u32, f64),
 ) -> Result<TrainView> {
     let err = |what: String| PipelineError::View {
         view: view.name.clone(),
@@ -239,6 +244,7 @@ pub fn build(
             labels: Vec::new(),
             label_counts: Vec::new(),
             ids,
+            band: Vec::new(),
         });
     }
     let mut mask = vec![0.0f32; w * h * 3];
@@ -259,6 +265,12 @@ pub fn build(
             }
         }
     }
+    let radius = (tolerance_px.max(0.0) / f as f64).ceil() as usize;
+    let band = if radius > 0 {
+        trand_train::losses::band::background_band(&labels, w, h, radius)
+    } else {
+        Vec::new()
+    };
     Ok(TrainView {
         name: view.name.clone(),
         camera,
@@ -269,6 +281,7 @@ pub fn build(
         labels,
         label_counts,
         ids,
+        band,
     })
 }
 
@@ -310,23 +323,66 @@ mod tests {
     #[test]
     fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
         let view = grey_view(4, 2, vec![0, 0, 3, 3, 0, 0, 3, 3]);
-        let t =
-            build(&view, &[], 15, [0.0; 3], Supervision::FullImage, 1).expect("masks are not used");
+        let t = build(&view, &[], 15, [0.0; 3], Supervision::FullImage, (1, 3.0))
+            .expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
         assert!(t.mask.is_empty() && t.labels.is_empty());
-        assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, 1).is_err());
-        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 1)
-            .expect("id 3 is known");
+        assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, (1, 0.0)).is_err());
+        let t = build(
+            &view,
+            &[(3, 1)],
+            15,
+            [0.0; 3],
+            Supervision::ObjectAware,
+            (1, 0.0),
+        )
+        .expect("id 3 is known");
         assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
         assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
     }
 
     #[test]
+    fn the_band_radius_is_given_in_native_pixels_and_rounded_up_at_the_view_resolution() {
+        // A 2 x 2 object in the middle of a 12 x 2 strip, downsampled 1 and 2.
+        let mut ids = vec![0u16; 24];
+        for o in [6, 7, 18, 19] {
+            ids[o] = 3;
+        }
+        let view = grey_view(12, 2, ids);
+        let band = |f, px| {
+            build(
+                &view,
+                &[(3, 1)],
+                15,
+                [0.0; 3],
+                Supervision::ObjectAware,
+                (f, px),
+            )
+            .unwrap()
+            .band
+        };
+        assert!(band(1, 0.0).is_empty());
+        let b: Vec<usize> = (0..24).filter(|&o| band(1, 3.0)[o]).collect();
+        assert_eq!(b, [3, 4, 5, 8, 9, 10, 15, 16, 17, 20, 21, 22]);
+        // 3 native pixels are 1.5 at half resolution: 2 pixels on each side of the pixel at x = 3.
+        let b: Vec<usize> = (0..6).filter(|&x| band(2, 3.0)[x]).collect();
+        assert_eq!(b, [1, 2, 4, 5]);
+    }
+
+    #[test]
     fn a_factor_that_does_not_divide_the_image_gives_a_camera_of_the_image_size() {
         let view = grey_view(8, 5, vec![3; 40]);
         // 8 / 3 rounds to 3 but two blocks fit; 5 / 3 rounds to 2 but one block fits.
-        let t = build(&view, &[(3, 1)], 15, [0.0; 3], Supervision::ObjectAware, 3).unwrap();
+        let t = build(
+            &view,
+            &[(3, 1)],
+            15,
+            [0.0; 3],
+            Supervision::ObjectAware,
+            (3, 0.0),
+        )
+        .unwrap();
         assert_eq!((t.width, t.height), (2, 1));
         let k = &t.camera.intrinsics;
         assert_eq!((k.width, k.height), (2, 1));

@@ -19,7 +19,7 @@ use trand_render::{
 };
 use trand_train::config::TrainConfig;
 use trand_train::losses::{
-    dice::dice_from_sums, geometry, object::object_aware_loss, photometric::photometric,
+    band, dice::dice_from_sums, geometry, object::object_aware_loss, photometric::photometric,
 };
 use trand_train::{Adam, DensifyStats, PoseCorrections, densify_and_prune, reset_opacity};
 
@@ -202,12 +202,21 @@ impl<'a> Trainer<'a> {
             || object_aware.then(|| photometric(&out.mask, &view.mask, w, h, 3, lam)),
         );
         rep.rgb = p.value;
-        g.rgb = Some(p.grad.into_iter().map(|v| v * rgb_w).collect());
+        let mut g_rgb: Vec<f32> = p.grad.into_iter().map(|v| v * rgb_w).collect();
+        // A segmenter's boundary is a few pixels off: the background band is not fitted (losses::band).
+        if !view.band.is_empty() {
+            band::clear_band(&mut g_rgb, &view.band, 3);
+        }
+        g.rgb = Some(g_rgb);
         let mut loss = rgb_w * p.value;
         if let Some(pm) = pm {
             rep.mask = pm.value;
             loss += il.mask as f32 * pm.value;
-            g.mask = Some(pm.grad.into_iter().map(|v| v * il.mask as f32).collect());
+            let mut g_mask: Vec<f32> = pm.grad.into_iter().map(|v| v * il.mask as f32).collect();
+            if !view.band.is_empty() {
+                band::clear_band(&mut g_mask, &view.band, 3);
+            }
+            g.mask = Some(g_mask);
             let sums = out.object_sums.as_ref().expect("rendered with object sums");
             let (dv, g_total, g_on_label) =
                 dice_from_sums(&sums.total, &sums.on_label, &view.label_counts);

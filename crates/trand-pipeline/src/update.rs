@@ -288,7 +288,7 @@ pub fn update_with_cancel(
                 surfels.num_objects,
                 opts.train.background,
                 supervision,
-                factor,
+                (factor, opts.train.image_loss.boundary_tolerance_px),
             )
         };
         let views = [build(ds)?];

@@ -127,6 +127,7 @@ fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
             labels: Vec::new(),
             label_counts: Vec::new(),
             ids: ids(&camera, solids),
+            band: Vec::new(),
         })
         .collect()
 }

@@ -293,6 +293,12 @@ pub struct ImageLossConfig {
     pub mask: f64,
     /// Weight of the Dice loss on the object map.
     pub dice: f64,
+    /// Background pixels within this many pixels (at the images' native resolution) of an object are
+    /// left out of the photometric gradients: a segmenter's boundary is a few pixels off, and object
+    /// pixels it called background would pull the surfels there to transparency
+    /// ([`crate::losses::band`]). 0 (the default) fits every pixel, as the reference does: with exact
+    /// masks the band costs depth on a narrow baseline and at t = 1 (BENCHMARKS.md §8).
+    pub boundary_tolerance_px: f64,
 }
 
 impl Default for ImageLossConfig {
@@ -302,6 +308,7 @@ impl Default for ImageLossConfig {
             rgb: 0.5,
             mask: 0.5,
             dice: 1.0,
+            boundary_tolerance_px: 0.0,
         }
     }
 }
