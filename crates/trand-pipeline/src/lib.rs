@@ -50,7 +50,7 @@ pub enum PipelineError {
     Render(#[from] trand_render::RenderError),
     #[error("initialisation failed: {0}")]
     Init(#[from] trand_train::init::InitError),
-    #[error("invalid configuration: {0}")]
+    #[error(transparent)]
     Config(#[from] trand_train::config::ConfigError),
     #[error("view {view}: {what}")]
     View { view: String, what: String },
