@@ -301,6 +301,18 @@ mod tests {
         assert_eq!(palette(0), [0.0; 3]);
     }
 
+    /// Object-aware targets of `view`, whose one object has id 3 (channel 1).
+    fn object_targets(view: &View, scale: (u32, f64)) -> Result<TrainView> {
+        build(
+            view,
+            &[(3, 1)],
+            15,
+            [0.0; 3],
+            Supervision::ObjectAware,
+            scale,
+        )
+    }
+
     /// A `w × h` view of grey pixels with the given instance ids, seen from 1 m.
     fn grey_view(w: u32, h: u32, ids: Vec<u16>) -> View {
         let k = trand_core::Intrinsics::centered(10.0, w, h);
@@ -328,15 +340,7 @@ mod tests {
         assert_eq!(t.rgb.len(), 24);
         assert!(t.mask.is_empty() && t.labels.is_empty());
         assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, (1, 0.0)).is_err());
-        let t = build(
-            &view,
-            &[(3, 1)],
-            15,
-            [0.0; 3],
-            Supervision::ObjectAware,
-            (1, 0.0),
-        )
-        .expect("id 3 is known");
+        let t = object_targets(&view, (1, 0.0)).expect("id 3 is known");
         assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
         assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
@@ -350,39 +354,22 @@ mod tests {
             ids[o] = 3;
         }
         let view = grey_view(12, 2, ids);
-        let band = |f, px| {
-            build(
-                &view,
-                &[(3, 1)],
-                15,
-                [0.0; 3],
-                Supervision::ObjectAware,
-                (f, px),
-            )
-            .unwrap()
-            .band
+        // The indices of the band's pixels.
+        let band = |f, px| -> Vec<usize> {
+            let t = object_targets(&view, (f, px)).unwrap();
+            (0..t.band.len()).filter(|&o| t.band[o]).collect()
         };
-        assert!(band(1, 0.0).is_empty());
-        let b: Vec<usize> = (0..24).filter(|&o| band(1, 3.0)[o]).collect();
-        assert_eq!(b, [3, 4, 5, 8, 9, 10, 15, 16, 17, 20, 21, 22]);
+        assert!(object_targets(&view, (1, 0.0)).unwrap().band.is_empty());
+        assert_eq!(band(1, 3.0), [3, 4, 5, 8, 9, 10, 15, 16, 17, 20, 21, 22]);
         // 3 native pixels are 1.5 at half resolution: 2 pixels on each side of the pixel at x = 3.
-        let b: Vec<usize> = (0..6).filter(|&x| band(2, 3.0)[x]).collect();
-        assert_eq!(b, [1, 2, 4, 5]);
+        assert_eq!(band(2, 3.0), [1, 2, 4, 5]);
     }
 
     #[test]
     fn a_factor_that_does_not_divide_the_image_gives_a_camera_of_the_image_size() {
         let view = grey_view(8, 5, vec![3; 40]);
         // 8 / 3 rounds to 3 but two blocks fit; 5 / 3 rounds to 2 but one block fits.
-        let t = build(
-            &view,
-            &[(3, 1)],
-            15,
-            [0.0; 3],
-            Supervision::ObjectAware,
-            (3, 0.0),
-        )
-        .unwrap();
+        let t = object_targets(&view, (3, 0.0)).unwrap();
         assert_eq!((t.width, t.height), (2, 1));
         let k = &t.camera.intrinsics;
         assert_eq!((k.width, k.height), (2, 1));

@@ -201,22 +201,22 @@ impl<'a> Trainer<'a> {
             || photometric(&out.rgb, &view.rgb, w, h, 3, lam),
             || object_aware.then(|| photometric(&out.mask, &view.mask, w, h, 3, lam)),
         );
+        // A photometric gradient, weighted; a segmenter's boundary is a few pixels off, so the
+        // background band (when there is one) is not fitted (losses::band).
+        let weighted = |grad: Vec<f32>, weight: f32| {
+            let mut grad: Vec<f32> = grad.into_iter().map(|v| v * weight).collect();
+            if !view.band.is_empty() {
+                band::clear_band(&mut grad, &view.band, 3);
+            }
+            grad
+        };
         rep.rgb = p.value;
-        let mut g_rgb: Vec<f32> = p.grad.into_iter().map(|v| v * rgb_w).collect();
-        // A segmenter's boundary is a few pixels off: the background band is not fitted (losses::band).
-        if !view.band.is_empty() {
-            band::clear_band(&mut g_rgb, &view.band, 3);
-        }
-        g.rgb = Some(g_rgb);
+        g.rgb = Some(weighted(p.grad, rgb_w));
         let mut loss = rgb_w * p.value;
         if let Some(pm) = pm {
             rep.mask = pm.value;
             loss += il.mask as f32 * pm.value;
-            let mut g_mask: Vec<f32> = pm.grad.into_iter().map(|v| v * il.mask as f32).collect();
-            if !view.band.is_empty() {
-                band::clear_band(&mut g_mask, &view.band, 3);
-            }
-            g.mask = Some(g_mask);
+            g.mask = Some(weighted(pm.grad, il.mask as f32));
             let sums = out.object_sums.as_ref().expect("rendered with object sums");
             let (dv, g_total, g_on_label) =
                 dice_from_sums(&sums.total, &sums.on_label, &view.label_counts);
