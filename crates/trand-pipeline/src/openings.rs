@@ -127,6 +127,8 @@ const SECTORS: usize = 16;
 const RIM_WINDOW: usize = 4;
 /// Slices (of [`VOXEL_M`]) compared by the roof test.
 const ROOF_RUN: usize = 4;
+/// Largest share of an object's hull voxels above a gap that are strays (see [`hull_end`]).
+const MAX_STRAY_SHARE: f64 = 0.25;
 /// An object needs this many voxels for a profile.
 const MIN_VOXELS: usize = 200;
 /// A slice at most this wide (m) is a roof's apex, not the object's (see [`Profile::top_slice`]).
@@ -245,9 +247,7 @@ impl Profile {
                 (foot, (middle - foot).length() / (0.4 * height))
             }
         };
-        // The hull ends at its first empty slice: voxels above a gap are strays (label noise at
-        // occlusions), not the object's top.
-        let end = by_slice.iter().position(|s| s.is_empty()).unwrap_or(slices);
+        let end = hull_end(&by_slice);
         let radius = by_slice[..end]
             .iter()
             .map(|s| sector_radius(s, axis))
@@ -304,6 +304,22 @@ impl Profile {
     pub fn slice_top(&self, k: usize) -> f64 {
         self.z0 + (k + 1) as f64 * VOXEL_M
     }
+}
+
+/// Where a hull's profile ends: at its first empty slice above which lie fewer than
+/// [`MAX_STRAY_SHARE`] of its voxels (strays: label noise at occlusions, not the object's top). A
+/// gap with more above it is a thin part the hull lost (a wine glass's stem, a few pixels wide, is
+/// gone wherever one view's mask is eroded or its camera a little off), bridged as empty slices.
+fn hull_end(by_slice: &[Vec<DVec2>]) -> usize {
+    let total: usize = by_slice.iter().map(Vec::len).sum();
+    let mut above = total;
+    for (k, s) in by_slice.iter().enumerate() {
+        above -= s.len();
+        if s.is_empty() && (above as f64) < MAX_STRAY_SHARE * total as f64 {
+            return k;
+        }
+    }
+    by_slice.len()
 }
 
 /// The axis and lean of a hull seen from around it, from its foot, second and middle fifths by
