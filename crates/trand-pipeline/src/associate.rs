@@ -21,9 +21,11 @@
 //!    each view's instances are matched again (Hungarian, voxel IoU) to the objects as the other
 //!    views name them (splatted into the view with a depth test), twice. An instance still unmatched
 //!    is an object no other instance of its view stands for when it shows some of it
-//!    ([`FREE_SHARE`]: a mostly hidden object shows few pixels, and its rays cross the objects in front
-//!    of it), a piece of an object when most of it shows that object ([`SPLIT_SHARE`]: a split), and
-//!    otherwise an object the reference did not show, which founds a new one.
+//!    ([`FREE_SHARE`]: a mostly hidden object shows few pixels, and its rays cross the objects in
+//!    front of it; the one its own id names when it shows that one, since a sliver's rays may cross
+//!    a missed object in front of it), a piece of an object when most of it shows that object
+//!    ([`SPLIT_SHARE`]: a split), and otherwise an object the reference did not show, which founds
+//!    a new one.
 //! 4. **Merges.** The consensus voxels are splatted into each view with a depth test. An instance
 //!    whose pixels show, for at least [`MERGE_SHARE`] of them, an object that no other instance of
 //!    the view stands for covers two objects: those pixels are given to that object.
@@ -649,9 +651,23 @@ pub fn associate(
         let claimed: Vec<usize> = map[v].iter().flatten().map(|m| m.0).collect();
         let free: Vec<usize> = (0..names.len()).filter(|g| !claimed.contains(g)).collect();
         if !free.is_empty() {
+            // Where the instance's own id names a free object it shows, the id decides: a sliver
+            // of a mostly hidden object says little about which object it is, and its rays may
+            // cross a missed object in front of it.
             let cost: Vec<Vec<f64>> = unmatched
                 .iter()
-                .map(|&k| free.iter().map(|&g| 1.0 - ev[k].score(g)).collect())
+                .map(|&k| {
+                    free.iter()
+                        .map(|&g| {
+                            let sc = ev[k].score(g);
+                            if names[g] == ids[v][k] && sc >= FREE_SHARE {
+                                -1.0
+                            } else {
+                                1.0 - sc
+                            }
+                        })
+                        .collect()
+                })
                 .collect();
             for (row, col) in hungarian(&cost).into_iter().enumerate() {
                 let (k, Some(g)) = (unmatched[row], col.map(|c| free[c])) else {
