@@ -297,7 +297,8 @@ pub struct ImageLossConfig {
     /// left out of the photometric gradients: a segmenter's boundary is a few pixels off, and object
     /// pixels it called background would pull the surfels there to transparency
     /// ([`crate::losses::band`]). 0 (the default) fits every pixel, as the reference does: with exact
-    /// masks the band costs depth on a narrow baseline and at t = 1 (BENCHMARKS.md §8).
+    /// masks the band costs depth on a narrow baseline and at t = 1, and it helps against boundary
+    /// errors only when training at reduced resolution (BENCHMARKS.md §8, §10).
     pub boundary_tolerance_px: f64,
 }
 
