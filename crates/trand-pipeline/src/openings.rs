@@ -134,7 +134,8 @@ const MIN_VOXELS: usize = 200;
 /// A slice at most this wide (m) is a roof's apex, not the object's (see [`Profile::top_slice`]).
 const APEX_M: f64 = 2.0 * VOXEL_M;
 
-/// Labelled voxel centres of the training masks' visual hull, per object id.
+/// Labelled voxel centres of the training masks' visual hull, per object id (the masks as given,
+/// [`TrainView::given_ids`]).
 pub fn object_voxels(views: &[TrainView], min: DVec3, max: DVec3) -> BTreeMap<u16, Vec<DVec3>> {
     object_voxels_where(views, min, max, |_| true)
 }
@@ -192,7 +193,7 @@ fn id_at(v: &TrainView, p: DVec3) -> Option<u16> {
     if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
         return None;
     }
-    Some(v.ids[yi as usize * v.width + xi as usize])
+    Some(v.given_ids[yi as usize * v.width + xi as usize])
 }
 
 /// Radial profile of one object's hull about a vertical axis, in slices of [`VOXEL_M`].

@@ -294,7 +294,10 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
                     opts.num_objects,
                     opts.train.background,
                     sup,
-                    (factor, opts.train.image_loss.boundary_tolerance_px),
+                    (
+                        factor,
+                        targets::MaskEdges::from_config(&opts.train.image_loss),
+                    ),
                 )
             })
             .collect::<Result<Vec<_>>>()

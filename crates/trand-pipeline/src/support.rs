@@ -94,7 +94,7 @@ impl<'a> Support<'a> {
             if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
                 return true;
             }
-            v.ids[yi as usize * v.width + xi as usize] != 0
+            v.given_ids[yi as usize * v.width + xi as usize] != 0
         })
     }
 }

@@ -39,8 +39,13 @@ pub struct TrainView {
     pub labels: Vec<u8>,
     /// Pixels per channel (`Σ t` of the Dice loss); empty for [`Supervision::FullImage`].
     pub label_counts: Vec<f32>,
-    /// Instance id per pixel (after downsampling).
+    /// Instance id per pixel (after downsampling), each object grown by [`MaskEdges::grow_px`]: what
+    /// the losses and the visual-hull initialisation fit.
     pub ids: Vec<u16>,
+    /// The instance ids as given (after downsampling). The decisions taken from the masks (the
+    /// open-vessel and support priors) read these: their thresholds were measured on masks as a
+    /// segmenter gives them, and a grown hull's top and footprint are not an object's.
+    pub given_ids: Vec<u16>,
     /// Background pixels left out of the photometric gradients
     /// ([`trand_train::losses::band::background_band`]); empty when none are.
     pub band: Vec<bool>,
@@ -147,16 +152,34 @@ pub fn check_channels(
     Ok(())
 }
 
-/// Builds the targets of one view, downsampled by `downsample`; `tolerance_px` is the background
-/// band's radius in native pixels ([`trand_train::config::ImageLossConfig::boundary_tolerance_px`]),
-/// rounded up at the view's resolution.
+/// How a view's mask edges are treated, in native pixels
+/// ([`trand_train::config::ImageLossConfig`]'s `boundary_tolerance_px` and `mask_grow_px`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MaskEdges {
+    /// The background band's radius, rounded up at the view's resolution.
+    pub tolerance_px: f64,
+    /// How far every object grows into the background, rounded down at the view's resolution.
+    pub grow_px: f64,
+}
+
+impl MaskEdges {
+    pub fn from_config(il: &trand_train::config::ImageLossConfig) -> Self {
+        Self {
+            tolerance_px: il.boundary_tolerance_px,
+            grow_px: il.mask_grow_px,
+        }
+    }
+}
+
+/// Builds the targets of one view, downsampled by `downsample`, with its mask edges treated as `edges`
+/// says.
 pub fn build(
     view: &View,
     channels: &[(u16, usize)],
     num_objects: usize,
     background: [f32; 3],
     supervision: Supervision,
-    (downsample, tolerance_px): (u32, f64),
+    (downsample, edges): (u32, MaskEdges),
 ) -> Result<TrainView> {
     let err = |what: String| PipelineError::View {
         view: view.name.clone(),
@@ -225,6 +248,11 @@ pub fn build(
             }
         }
     }
+    let given_ids = ids.clone();
+    if supervision == Supervision::ObjectAware {
+        let grow = (edges.grow_px.max(0.0) / f as f64).floor() as usize;
+        grow_objects(&mut ids, w, h, grow);
+    }
     // The blocks tile the image from its top-left corner and drop the last `w0 mod f` columns (and
     // rows), so the image is `w0 / f` wide, not the rounded `w0 / f` of the scaled intrinsics.
     let mut intrinsics = view.camera.intrinsics.scaled(1.0 / f as f64);
@@ -244,6 +272,7 @@ pub fn build(
             labels: Vec::new(),
             label_counts: Vec::new(),
             ids,
+            given_ids,
             band: Vec::new(),
         });
     }
@@ -265,7 +294,7 @@ pub fn build(
             }
         }
     }
-    let radius = (tolerance_px.max(0.0) / f as f64).ceil() as usize;
+    let radius = (edges.tolerance_px.max(0.0) / f as f64).ceil() as usize;
     let band = if radius > 0 {
         trand_train::losses::band::background_band(&labels, w, h, radius)
     } else {
@@ -281,8 +310,44 @@ pub fn build(
         labels,
         label_counts,
         ids,
+        given_ids,
         band,
     })
+}
+
+/// Grows every object of the row-major id map `ids` (`w × h`, 0 = background) into the background
+/// pixels within `radius` pixels (Euclidean) of it ([`MaskEdges::grow_px`]). A background pixel takes
+/// the id of its nearest object pixel in the *given* map (ties: the first offset in the order below), so
+/// objects never grow into each other or through a grown pixel.
+pub fn grow_objects(ids: &mut [u16], w: usize, h: usize, radius: usize) {
+    assert_eq!(ids.len(), w * h, "grow: id map size");
+    if radius == 0 {
+        return;
+    }
+    let r = radius as isize;
+    // The disc's offsets, nearest first (then row-major), so the first object pixel met is the nearest.
+    let mut offsets: Vec<(isize, isize)> = (-r..=r)
+        .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| (dx, dy) != (0, 0) && dx * dx + dy * dy <= r * r)
+        .collect();
+    offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
+    let given = ids.to_vec();
+    let (wi, hi) = (w as isize, h as isize);
+    for y in 0..hi {
+        for x in 0..wi {
+            let o = (y * wi + x) as usize;
+            if given[o] != 0 {
+                continue;
+            }
+            ids[o] = offsets
+                .iter()
+                .map(|&(dx, dy)| (x + dx, y + dy))
+                .filter(|&(xx, yy)| (0..wi).contains(&xx) && (0..hi).contains(&yy))
+                .map(|(xx, yy)| given[(yy * wi + xx) as usize])
+                .find(|&id| id != 0)
+                .unwrap_or(0);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -301,8 +366,21 @@ mod tests {
         assert_eq!(palette(0), [0.0; 3]);
     }
 
+    /// The masks as given: no band, no growth.
+    fn as_given() -> MaskEdges {
+        MaskEdges::default()
+    }
+
+    /// A background band of `px` native pixels, no growth.
+    fn band_of(px: f64) -> MaskEdges {
+        MaskEdges {
+            tolerance_px: px,
+            grow_px: 0.0,
+        }
+    }
+
     /// Object-aware targets of `view`, whose one object has id 3 (channel 1).
-    fn object_targets(view: &View, scale: (u32, f64)) -> Result<TrainView> {
+    fn object_targets(view: &View, scale: (u32, MaskEdges)) -> Result<TrainView> {
         build(
             view,
             &[(3, 1)],
@@ -335,12 +413,29 @@ mod tests {
     #[test]
     fn whole_image_targets_ignore_unknown_mask_ids_but_object_targets_reject_them() {
         let view = grey_view(4, 2, vec![0, 0, 3, 3, 0, 0, 3, 3]);
-        let t = build(&view, &[], 15, [0.0; 3], Supervision::FullImage, (1, 3.0))
-            .expect("masks are not used");
+        let t = build(
+            &view,
+            &[],
+            15,
+            [0.0; 3],
+            Supervision::FullImage,
+            (1, band_of(3.0)),
+        )
+        .expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
         assert!(t.mask.is_empty() && t.labels.is_empty());
-        assert!(build(&view, &[], 15, [0.0; 3], Supervision::ObjectAware, (1, 0.0)).is_err());
-        let t = object_targets(&view, (1, 0.0)).expect("id 3 is known");
+        assert!(
+            build(
+                &view,
+                &[],
+                15,
+                [0.0; 3],
+                Supervision::ObjectAware,
+                (1, as_given())
+            )
+            .is_err()
+        );
+        let t = object_targets(&view, (1, as_given())).expect("id 3 is known");
         assert_eq!(t.labels, vec![0, 0, 1, 1, 0, 0, 1, 1]);
         assert_eq!(t.label_counts[..3], [4.0, 4.0, 0.0]);
         assert_eq!(t.rgb[0], 0.0, "background blacked out");
@@ -356,20 +451,93 @@ mod tests {
         let view = grey_view(12, 2, ids);
         // The indices of the band's pixels.
         let band = |f, px| -> Vec<usize> {
-            let t = object_targets(&view, (f, px)).unwrap();
+            let t = object_targets(&view, (f, band_of(px))).unwrap();
             (0..t.band.len()).filter(|&o| t.band[o]).collect()
         };
-        assert!(object_targets(&view, (1, 0.0)).unwrap().band.is_empty());
+        assert!(
+            object_targets(&view, (1, as_given()))
+                .unwrap()
+                .band
+                .is_empty()
+        );
         assert_eq!(band(1, 3.0), [3, 4, 5, 8, 9, 10, 15, 16, 17, 20, 21, 22]);
         // 3 native pixels are 1.5 at half resolution: 2 pixels on each side of the pixel at x = 3.
         assert_eq!(band(2, 3.0), [1, 2, 4, 5]);
     }
 
     #[test]
+    fn grown_masks_claim_the_background_disc_around_each_object_but_never_another_object() {
+        // 7 x 3: object 3 at x = 1, object 5 at x = 4..5, row y = 1; background elsewhere.
+        let mut ids = vec![0u16; 21];
+        ids[8] = 3;
+        ids[11] = 5;
+        ids[12] = 5;
+        grow_objects(&mut ids, 7, 3, 1);
+        #[rustfmt::skip]
+        let want = [
+            0, 3, 0, 0, 5, 5, 0,
+            3, 3, 3, 5, 5, 5, 5,
+            0, 3, 0, 0, 5, 5, 0,
+        ];
+        assert_eq!(ids, want);
+        // Radius 2 from the same map: the pixel between them (x = 3) is 2 from object 3 and 1 from
+        // object 5, so it goes to 5; x = 2 is nearer 3. Nothing is grown from a grown pixel.
+        let mut ids = vec![0u16; 21];
+        ids[8] = 3;
+        ids[11] = 5;
+        ids[12] = 5;
+        grow_objects(&mut ids, 7, 3, 2);
+        assert_eq!(&ids[7..14], &[3, 3, 3, 5, 5, 5, 5]);
+        assert_eq!(
+            &ids[0..7],
+            &[3, 3, 3, 5, 5, 5, 5],
+            "diagonal (1, 1) is within 2"
+        );
+    }
+
+    #[test]
+    fn mask_growth_is_given_in_native_pixels_and_rounded_down_at_the_view_resolution() {
+        // A 2 x 2 object in the middle of a 12 x 2 strip.
+        let mut ids = vec![0u16; 24];
+        for o in [6, 7, 18, 19] {
+            ids[o] = 3;
+        }
+        let view = grey_view(12, 2, ids);
+        let grown = |f, px| -> usize {
+            let edges = MaskEdges {
+                tolerance_px: 0.0,
+                grow_px: px,
+            };
+            let t = object_targets(&view, (f, edges)).unwrap();
+            t.labels.iter().filter(|&&l| l == 1).count()
+        };
+        assert_eq!(grown(1, 0.0), 4);
+        assert_eq!(grown(1, 2.0), 12, "two columns each side, both rows");
+        // 3 native pixels are 1.5 at half resolution: one pixel each side of the 1-pixel object.
+        assert_eq!(grown(2, 3.0), 3);
+        assert_eq!(grown(2, 1.0), 1, "half a pixel grows nothing");
+        // The hull reads the same grown ids, and grown pixels keep the photograph's colour.
+        let t = object_targets(
+            &view,
+            (
+                1,
+                MaskEdges {
+                    tolerance_px: 0.0,
+                    grow_px: 1.0,
+                },
+            ),
+        )
+        .unwrap();
+        assert_eq!(t.ids[5], 3);
+        assert_eq!(t.given_ids[5], 0, "the priors read the masks as given");
+        assert!((t.rgb[5 * 3] - 128.0 / 255.0).abs() < 1e-6);
+    }
+
+    #[test]
     fn a_factor_that_does_not_divide_the_image_gives_a_camera_of_the_image_size() {
         let view = grey_view(8, 5, vec![3; 40]);
         // 8 / 3 rounds to 3 but two blocks fit; 5 / 3 rounds to 2 but one block fits.
-        let t = object_targets(&view, (3, 0.0)).unwrap();
+        let t = object_targets(&view, (3, as_given())).unwrap();
         assert_eq!((t.width, t.height), (2, 1));
         let k = &t.camera.intrinsics;
         assert_eq!((k.width, k.height), (2, 1));

@@ -288,7 +288,10 @@ pub fn update_with_cancel(
                 surfels.num_objects,
                 opts.train.background,
                 supervision,
-                (factor, opts.train.image_loss.boundary_tolerance_px),
+                (
+                    factor,
+                    targets::MaskEdges::from_config(&opts.train.image_loss),
+                ),
             )
         };
         let views = [build(ds)?];

@@ -117,7 +117,8 @@ fn narrow_rig() -> Vec<Camera> {
 fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
     cams.into_iter()
         .enumerate()
-        .map(|(i, camera)| TrainView {
+        .map(|(i, camera)| (i, camera, ids(&camera, solids)))
+        .map(|(i, camera, ids)| TrainView {
             name: format!("{i}"),
             camera,
             width: 320,
@@ -126,7 +127,8 @@ fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
             mask: Vec::new(),
             labels: Vec::new(),
             label_counts: Vec::new(),
-            ids: ids(&camera, solids),
+            given_ids: ids.clone(),
+            ids,
             band: Vec::new(),
         })
         .collect()

@@ -300,6 +300,15 @@ pub struct ImageLossConfig {
     /// masks the band costs depth on a narrow baseline and at t = 1, and it helps against boundary
     /// errors only when training at reduced resolution (BENCHMARKS.md §8, §10).
     pub boundary_tolerance_px: f64,
+    /// Every object's mask grows by this many pixels (at the images' native resolution) into the
+    /// background around it before training, the visual hull included (the open-vessel and support
+    /// priors still read the masks as given). Errors of a segmenter's boundary do not cost alike: an
+    /// eroded mask carves a notch into the hull and trains the surfels there to transparency, so the
+    /// test views see through the object's edge, while a mask a pixel or two too large costs little.
+    /// For a segmenter whose masks are tight, 2 recovers what the erosion cost; with exact masks, or
+    /// errors either way, it costs more than it gains, hence 0 (the masks as given) by default
+    /// (BENCHMARKS.md §8, §10).
+    pub mask_grow_px: f64,
 }
 
 impl Default for ImageLossConfig {
@@ -310,6 +319,7 @@ impl Default for ImageLossConfig {
             mask: 0.5,
             dice: 1.0,
             boundary_tolerance_px: 0.0,
+            mask_grow_px: 0.0,
         }
     }
 }
