@@ -248,11 +248,12 @@ pub fn build(
             }
         }
     }
-    let given_ids = ids.clone();
-    if supervision == Supervision::ObjectAware {
-        let grow = (edges.grow_px.max(0.0) / f as f64).floor() as usize;
-        grow_objects(&mut ids, w, h, grow);
-    }
+    let given_ids = ids;
+    let grow = match supervision {
+        Supervision::ObjectAware => (edges.grow_px.max(0.0) / f as f64).floor() as usize,
+        Supervision::FullImage => 0,
+    };
+    let ids = grow_objects(&given_ids, w, h, grow);
     // The blocks tile the image from its top-left corner and drop the last `w0 mod f` columns (and
     // rows), so the image is `w0 / f` wide, not the rounded `w0 / f` of the scaled intrinsics.
     let mut intrinsics = view.camera.intrinsics.scaled(1.0 / f as f64);
@@ -315,14 +316,15 @@ pub fn build(
     })
 }
 
-/// Grows every object of the row-major id map `ids` (`w × h`, 0 = background) into the background
+/// The row-major id map `given` (`w × h`, 0 = background) with every object grown into the background
 /// pixels within `radius` pixels (Euclidean) of it ([`MaskEdges::grow_px`]). A background pixel takes
-/// the id of its nearest object pixel in the *given* map (ties: the first offset in the order below), so
-/// objects never grow into each other or through a grown pixel.
-pub fn grow_objects(ids: &mut [u16], w: usize, h: usize, radius: usize) {
-    assert_eq!(ids.len(), w * h, "grow: id map size");
+/// the id of its nearest object pixel in `given` (ties: the first offset in the order below), so objects
+/// never grow into each other or through a grown pixel.
+pub fn grow_objects(given: &[u16], w: usize, h: usize, radius: usize) -> Vec<u16> {
+    assert_eq!(given.len(), w * h, "grow: id map size");
+    let mut ids = given.to_vec();
     if radius == 0 {
-        return;
+        return ids;
     }
     let r = radius as isize;
     // The disc's offsets, nearest first (then row-major), so the first object pixel met is the nearest.
@@ -331,7 +333,6 @@ pub fn grow_objects(ids: &mut [u16], w: usize, h: usize, radius: usize) {
         .filter(|&(dx, dy)| (dx, dy) != (0, 0) && dx * dx + dy * dy <= r * r)
         .collect();
     offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
-    let given = ids.to_vec();
     let (wi, hi) = (w as isize, h as isize);
     for y in 0..hi {
         for x in 0..wi {
@@ -348,6 +349,7 @@ pub fn grow_objects(ids: &mut [u16], w: usize, h: usize, radius: usize) {
                 .unwrap_or(0);
         }
     }
+    ids
 }
 
 #[cfg(test)]
@@ -377,6 +379,23 @@ mod tests {
             tolerance_px: px,
             grow_px: 0.0,
         }
+    }
+
+    /// Every object grown by `px` native pixels, no band.
+    fn grown_by(px: f64) -> MaskEdges {
+        MaskEdges {
+            tolerance_px: 0.0,
+            grow_px: px,
+        }
+    }
+
+    /// A 12 x 2 strip of grey pixels with object 3 as a 2 x 2 square in its middle (x = 6, 7).
+    fn strip_view() -> View {
+        let mut ids = vec![0u16; 24];
+        for o in [6, 7, 18, 19] {
+            ids[o] = 3;
+        }
+        grey_view(12, 2, ids)
     }
 
     /// Object-aware targets of `view`, whose one object has id 3 (channel 1).
@@ -443,12 +462,8 @@ mod tests {
 
     #[test]
     fn the_band_radius_is_given_in_native_pixels_and_rounded_up_at_the_view_resolution() {
-        // A 2 x 2 object in the middle of a 12 x 2 strip, downsampled 1 and 2.
-        let mut ids = vec![0u16; 24];
-        for o in [6, 7, 18, 19] {
-            ids[o] = 3;
-        }
-        let view = grey_view(12, 2, ids);
+        // Downsampled 1 and 2.
+        let view = strip_view();
         // The indices of the band's pixels.
         let band = |f, px| -> Vec<usize> {
             let t = object_targets(&view, (f, band_of(px))).unwrap();
@@ -468,11 +483,11 @@ mod tests {
     #[test]
     fn grown_masks_claim_the_background_disc_around_each_object_but_never_another_object() {
         // 7 x 3: object 3 at x = 1, object 5 at x = 4..5, row y = 1; background elsewhere.
-        let mut ids = vec![0u16; 21];
-        ids[8] = 3;
-        ids[11] = 5;
-        ids[12] = 5;
-        grow_objects(&mut ids, 7, 3, 1);
+        let mut given = vec![0u16; 21];
+        given[8] = 3;
+        given[11] = 5;
+        given[12] = 5;
+        let ids = grow_objects(&given, 7, 3, 1);
         #[rustfmt::skip]
         let want = [
             0, 3, 0, 0, 5, 5, 0,
@@ -482,11 +497,7 @@ mod tests {
         assert_eq!(ids, want);
         // Radius 2 from the same map: the pixel between them (x = 3) is 2 from object 3 and 1 from
         // object 5, so it goes to 5; x = 2 is nearer 3. Nothing is grown from a grown pixel.
-        let mut ids = vec![0u16; 21];
-        ids[8] = 3;
-        ids[11] = 5;
-        ids[12] = 5;
-        grow_objects(&mut ids, 7, 3, 2);
+        let ids = grow_objects(&given, 7, 3, 2);
         assert_eq!(&ids[7..14], &[3, 3, 3, 5, 5, 5, 5]);
         assert_eq!(
             &ids[0..7],
@@ -497,18 +508,9 @@ mod tests {
 
     #[test]
     fn mask_growth_is_given_in_native_pixels_and_rounded_down_at_the_view_resolution() {
-        // A 2 x 2 object in the middle of a 12 x 2 strip.
-        let mut ids = vec![0u16; 24];
-        for o in [6, 7, 18, 19] {
-            ids[o] = 3;
-        }
-        let view = grey_view(12, 2, ids);
+        let view = strip_view();
         let grown = |f, px| -> usize {
-            let edges = MaskEdges {
-                tolerance_px: 0.0,
-                grow_px: px,
-            };
-            let t = object_targets(&view, (f, edges)).unwrap();
+            let t = object_targets(&view, (f, grown_by(px))).unwrap();
             t.labels.iter().filter(|&&l| l == 1).count()
         };
         assert_eq!(grown(1, 0.0), 4);
@@ -517,17 +519,7 @@ mod tests {
         assert_eq!(grown(2, 3.0), 3);
         assert_eq!(grown(2, 1.0), 1, "half a pixel grows nothing");
         // The hull reads the same grown ids, and grown pixels keep the photograph's colour.
-        let t = object_targets(
-            &view,
-            (
-                1,
-                MaskEdges {
-                    tolerance_px: 0.0,
-                    grow_px: 1.0,
-                },
-            ),
-        )
-        .unwrap();
+        let t = object_targets(&view, (1, grown_by(1.0))).unwrap();
         assert_eq!(t.ids[5], 3);
         assert_eq!(t.given_ids[5], 0, "the priors read the masks as given");
         assert!((t.rgb[5 * 3] - 128.0 / 255.0).abs() < 1e-6);

@@ -305,9 +305,9 @@ pub struct ImageLossConfig {
     /// priors still read the masks as given). Errors of a segmenter's boundary do not cost alike: an
     /// eroded mask carves a notch into the hull and trains the surfels there to transparency, so the
     /// test views see through the object's edge, while a mask a pixel or two too large costs little.
-    /// For a segmenter whose masks are tight, 2 recovers what the erosion cost; with exact masks, or
-    /// errors either way, it costs more than it gains, hence 0 (the masks as given) by default
-    /// (BENCHMARKS.md §8, §10).
+    /// For a segmenter whose masks are tight, 2 recovers about half of what the erosion cost; with
+    /// exact masks, or errors either way, it costs more than it gains, hence 0 (the masks as given) by
+    /// default (BENCHMARKS.md §8, §10).
     pub mask_grow_px: f64,
 }
 
