@@ -619,11 +619,16 @@ impl TrainConfig {
                 self.image_loss.lambda_dssim
             ));
         }
-        let tol = self.image_loss.boundary_tolerance_px;
-        if !(0.0..=64.0).contains(&tol) {
-            return bad(format!(
-                "image_loss.boundary_tolerance_px = {tol}: must be a number of pixels in [0, 64]"
-            ));
+        let il = &self.image_loss;
+        for (key, px) in [
+            ("boundary_tolerance_px", il.boundary_tolerance_px),
+            ("mask_grow_px", il.mask_grow_px),
+        ] {
+            if !(0.0..=64.0).contains(&px) {
+                return bad(format!(
+                    "image_loss.{key} = {px}: must be a number of pixels in [0, 64]"
+                ));
+            }
         }
         if self.densify.split_children == 0 || self.densify.split_scale_divisor <= 0.0 {
             return bad("split needs ≥ 1 child and a positive scale divisor".into());
@@ -909,13 +914,14 @@ mod tests {
             ),
             Err(ConfigError::Invalid(_))
         ));
-        for tol in ["-1.0", "nan", "1e9"] {
-            let r =
-                TrainConfig::from_toml_str(&format!("[image_loss]\nboundary_tolerance_px = {tol}"));
-            assert!(
-                matches!(&r, Err(ConfigError::Invalid(m)) if m.contains("boundary_tolerance_px")),
-                "{tol}: {r:?}"
-            );
+        for key in ["boundary_tolerance_px", "mask_grow_px"] {
+            for px in ["-1.0", "nan", "1e9"] {
+                let r = TrainConfig::from_toml_str(&format!("[image_loss]\n{key} = {px}"));
+                assert!(
+                    matches!(&r, Err(ConfigError::Invalid(m)) if m.contains(key)),
+                    "{key} = {px}: {r:?}"
+                );
+            }
         }
     }
 }
