@@ -37,9 +37,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let views = train_views(&seq, &opts)?.views;
         let (openings, tops) = find_openings(&views, &opts)?;
         for o in &openings {
+            let c = &o.carving;
+            let top = c.centre(c.radius.len() - 1);
+            let r: Vec<String> = c.radius.iter().map(|r| format!("{:.0}", r * 1e3)).collect();
             println!(
-                "{arg} opening rim z {:.3} floor z {:.3} r {:.3}",
-                o.rim_z, o.floor_z, o.rim_radius
+                "{arg} opening rim z {:.3} floor z {:.3} r {:.3}, carving centred at ({:.1}, {:.1}) mm at the rim, R(mm) {}",
+                o.rim_z,
+                o.floor_z,
+                o.rim_radius,
+                top.x * 1e3,
+                top.y * 1e3,
+                r.join(" ")
             );
         }
         let kinds = kinds(&seq.root);

@@ -18,7 +18,8 @@
 //! its whole top lies in the hull's box, and its rim is its widest cross-section over
 //! the upper body (tumblers, mugs and bowls standing on their base). Its opening is
 //! then carved ([`Opening::carves`]): everything above the rim, and everything further than a wall
-//! margin inside the profile above the floor. The training views then have to explain the opening with
+//! margin inside the profile above the floor, measured about the body's own centre line and with
+//! the last slices under the rim as wide as the rim ([`Carving`]). The training views then have to explain the opening with
 //! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
 //!
 //! **From one side** (a narrow baseline, [`Baseline::Narrow`]) the hull is the support prior's (see
@@ -446,6 +447,8 @@ pub struct Opening {
     pub rim_radius: f64,
     /// Below this height nothing is carved (the base).
     pub floor_z: f64,
+    /// Where the carving is centred, slice by slice ([`Carving::of`]).
+    pub carving: Carving,
     /// Hull voxels ([`voxel_key`]) of objects leaning on the rim, within the carved region: what lies
     /// in them (or next to them) is theirs and is not carved.
     #[serde(skip)]
@@ -474,20 +477,116 @@ impl Opening {
         if !self.others.is_empty() && self.is_others(p) {
             return false;
         }
-        let r = (p.truncate() - DVec2::from_array(self.profile.axis)).length();
+        let k = ((p.z - self.profile.z0) / VOXEL_M).floor();
+        if k < 0.0 {
+            return false;
+        }
+        let k = (k as usize).min(self.carving.radius.len() - 1);
+        let r = (p.truncate() - self.carving.centre(k)).length();
         if p.z > self.rim_z {
             return r < self.rim_radius + WALL_MARGIN_M && p.z < self.rim_z + 4.0 * self.rim_radius;
         }
         if p.z < self.floor_z {
             return false;
         }
-        let k = ((p.z - self.profile.z0) / VOXEL_M).floor();
-        if k < 0.0 {
-            return false;
-        }
-        let k = (k as usize).min(self.profile.radius.len() - 1);
-        r < self.profile.radius[k] - WALL_MARGIN_M
+        r < self.carving.radius[k] - WALL_MARGIN_M
     }
+}
+
+/// The carved region's centre line and radius per slice of the [`Profile`].
+///
+/// The profile's axis is its foot's centre, which decides whether the object stands upright; but a
+/// foot's hull is the least reliable part of it (it mixes with what the object stands on, a wine
+/// glass's foot is a thin disc that one eroded mask or a camera a little off shifts by millimetres),
+/// and an opening carved about an axis 3–4 mm off leaves a crescent of the lid on one side. The
+/// carving of a hull seen from around it is centred instead on the body it carves: a least-squares line through the slice centres
+/// (component-wise medians) of the upper half below the rim, and each slice's radius is measured
+/// again about it ([`sector_radius`]). Above the rim the rim slice's centre is kept.
+#[derive(Clone, Debug, Serialize)]
+pub struct Carving {
+    /// Centre of slice 0 and its drift per slice (x, y).
+    pub centre0: [f64; 2],
+    pub drift: [f64; 2],
+    /// Radius per slice about the centre line, up to the rim slice.
+    pub radius: Vec<f64>,
+}
+
+impl Carving {
+    /// The carving of the hull `voxels` whose profile's rim is slice `rim`.
+    pub fn of(voxels: &[DVec3], profile: &Profile, rim: usize) -> Self {
+        let mut by_slice: Vec<Vec<DVec2>> = vec![Vec::new(); rim + 1];
+        for p in voxels {
+            let k = ((p.z - profile.z0) / VOXEL_M).floor();
+            if k >= 0.0 && (k as usize) <= rim {
+                by_slice[k as usize].push(p.truncate());
+            }
+        }
+        let centres: Vec<(f64, DVec2)> = (rim / 2..=rim)
+            .filter_map(|k| median_point(&by_slice[k]).map(|c| (k as f64, c)))
+            .collect();
+        let (centre0, drift) =
+            line_fit(&centres).unwrap_or((DVec2::from_array(profile.axis), DVec2::ZERO));
+        let centre = |k: usize| centre0 + drift * k as f64;
+        let mut radius: Vec<f64> = by_slice
+            .iter()
+            .enumerate()
+            .map(|(k, s)| {
+                if s.is_empty() {
+                    0.0
+                } else {
+                    sector_radius(s, centre(k))
+                }
+            })
+            .collect();
+        // The roof of a few views starts shallow at its edge and narrows the last slices below the
+        // rim (see `RIM_WINDOW`): they are carved as wide as the widest of them.
+        let window = rim.saturating_sub(RIM_WINDOW)..=rim;
+        let rim_radius = radius[window.clone()].iter().fold(0.0f64, |a, &b| a.max(b));
+        for r in &mut radius[window] {
+            *r = rim_radius;
+        }
+        Self {
+            centre0: centre0.to_array(),
+            drift: drift.to_array(),
+            radius,
+        }
+    }
+
+    /// The carving about the profile's own axis. From one side (a narrow baseline) the hull
+    /// stretches behind the object over the table it hides, so its slices' centres lie behind the
+    /// axis; the profile's axis was read from their fronts instead.
+    pub fn about_axis(profile: &Profile, rim: usize) -> Self {
+        Self {
+            centre0: profile.axis,
+            drift: [0.0, 0.0],
+            radius: profile.radius[..=rim].to_vec(),
+        }
+    }
+
+    /// Centre of slice `k` (the rim slice's above the rim).
+    pub fn centre(&self, k: usize) -> DVec2 {
+        let k = k.min(self.radius.len() - 1) as f64;
+        DVec2::from_array(self.centre0) + DVec2::from_array(self.drift) * k
+    }
+}
+
+/// Least-squares line `c(k) = c0 + k d` through `(k, centre)` pairs; a single pair gives no drift.
+fn line_fit(pts: &[(f64, DVec2)]) -> Option<(DVec2, DVec2)> {
+    let n = pts.len() as f64;
+    if pts.is_empty() {
+        return None;
+    }
+    let mk = pts.iter().map(|p| p.0).sum::<f64>() / n;
+    let mc = pts.iter().fold(DVec2::ZERO, |a, p| a + p.1) / n;
+    let skk: f64 = pts.iter().map(|p| (p.0 - mk).powi(2)).sum();
+    let d = if skk > 0.0 {
+        pts.iter()
+            .fold(DVec2::ZERO, |a, p| a + (p.1 - mc) * (p.0 - mk))
+            / skk
+    } else {
+        DVec2::ZERO
+    };
+    Some((mc - d * mk, d))
 }
 
 /// What [`classify`] decided for one object.
@@ -785,8 +884,13 @@ fn open_top(
     let floor_z = profile.slice_top(base) - VOXEL_M + FLOOR_M;
     let floor_z = support_top(hull, id, &profile, axis, (rim_z, rim_radius))
         .map_or(floor_z, |top| floor_z.max(top + FLOOR_M));
+    let carving = match baseline {
+        Baseline::Wide => Carving::of(voxels, &profile, rim),
+        Baseline::Narrow { .. } => Carving::about_axis(&profile, rim),
+    };
     Ok(Opening {
         shape,
+        carving,
         others: leaning.iter().map(|p| voxel_key(*p)).collect(),
         floor_z,
         rim_z,

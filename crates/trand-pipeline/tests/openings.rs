@@ -438,15 +438,22 @@ fn from_one_side_an_upright_tumbler_is_open_and_a_sphere_and_a_bottle_are_not() 
 /// Voxel centres of a vertical cylinder of radius 4 cm and height 8 cm standing at height `base`,
 /// whose lowest 1.5 cm are shifted 1.5 cm along x (a foot whose hull mixes with what it stands on).
 fn cylinder_with_shifted_foot(base: f64) -> Vec<DVec3> {
+    cylinder_voxels(base, 0.015, |_| 0.04)
+}
+
+/// Voxel centres of a vertical solid 8 cm high standing at height `base`, of radius `radius(k)` in
+/// its slice `k` (of 40), centred on the z axis but for its lowest 1.5 cm, shifted `foot_shift`
+/// along x.
+fn cylinder_voxels(base: f64, foot_shift: f64, radius: impl Fn(usize) -> f64) -> Vec<DVec3> {
     let v = trand_pipeline::openings::VOXEL_M;
     let mut out = Vec::new();
     for k in 0..40 {
         let z = base + (k as f64 + 0.5) * v;
-        let shift = if k < 8 { 0.015 } else { 0.0 };
+        let shift = if k < 8 { foot_shift } else { 0.0 };
         for i in -25i32..=25 {
             for j in -25i32..=25 {
                 let (x, y) = ((i as f64 + 0.5) * v, (j as f64 + 0.5) * v);
-                if x.hypot(y) <= 0.04 {
+                if x.hypot(y) <= radius(k) {
                     out.push(DVec3::new(x + shift, y, z));
                 }
             }
@@ -485,4 +492,40 @@ fn a_raised_object_leaning_by_its_foot_only_is_upright_about_its_body() {
     // On the table the same foot is not explained away.
     let standing = Profile::of(&cylinder_with_shifted_foot(0.0)).unwrap();
     assert!(standing.lean > MAX_LEAN, "lean {}", standing.lean);
+}
+
+#[test]
+fn the_carving_is_centred_on_the_body_not_on_a_foot_that_is_off_the_axis() {
+    use trand_pipeline::openings::{Carving, MAX_LEAN, Profile};
+    // A foot 4 mm off (one eroded mask, a camera a little off): still upright, and the profile's
+    // axis is the foot's.
+    let voxels = cylinder_voxels(0.0, 0.004, |_| 0.04);
+    let profile = Profile::of(&voxels).unwrap();
+    assert!(profile.lean <= MAX_LEAN, "lean {}", profile.lean);
+    assert!(profile.axis[0] > 0.003, "axis {:?}", profile.axis);
+    let rim = profile.radius.len() - 1;
+    let carving = Carving::of(&voxels, &profile, rim);
+    for k in [10, 25, rim] {
+        let c = carving.centre(k);
+        // Within a voxel: the slice centre is a median of voxel centres.
+        assert!(c.length() < 0.0015, "slice {k} centred at {c}");
+        let r = carving.radius[k];
+        assert!((r - 0.04).abs() <= 0.002, "slice {k}: radius {r}");
+    }
+}
+
+#[test]
+fn the_last_slices_below_the_rim_are_carved_as_wide_as_the_widest_of_them() {
+    use trand_pipeline::openings::{Carving, Profile};
+    // The roof of a few views starts shallow: the top three slices narrow by 3 mm each.
+    let voxels = cylinder_voxels(0.0, 0.0, |k| 0.04 - 0.003 * k.saturating_sub(36) as f64);
+    let profile = Profile::of(&voxels).unwrap();
+    let rim = profile.radius.len() - 1;
+    assert!(profile.radius[rim] < profile.radius[rim - 4] - 0.006);
+    let carving = Carving::of(&voxels, &profile, rim);
+    let widest = carving.radius[rim - 4];
+    for k in rim - 3..=rim {
+        assert_eq!(carving.radius[k], widest, "slice {k}");
+    }
+    assert!(carving.radius[rim - 5] < widest + 0.001);
 }
