@@ -19,8 +19,9 @@
 //! the upper body (tumblers, mugs and bowls standing on their base). Its opening is
 //! then carved ([`Opening::carves`]): everything above the rim, and everything further than a wall
 //! margin inside the profile above the floor, measured about the body's own centre line and with
-//! the last slices under the rim as wide as the rim ([`Carving`]). The training views then have to explain the opening with
-//! the inner walls and the bottom, which is where a test ray through the opening first meets glass.
+//! the last slices under the rim as wide as the rim ([`Carving`]). The training views then have to
+//! explain the opening with the inner walls and the bottom, which is where a test ray through the
+//! opening first meets glass.
 //!
 //! **From one side** (a narrow baseline, [`Baseline::Narrow`]) the hull is the support prior's (see
 //! [`crate::support`]): exact at each object's front, stretched behind it over the table it hides.
@@ -498,10 +499,11 @@ impl Opening {
 /// The profile's axis is its foot's centre, which decides whether the object stands upright; but a
 /// foot's hull is the least reliable part of it (it mixes with what the object stands on, a wine
 /// glass's foot is a thin disc that one eroded mask or a camera a little off shifts by millimetres),
-/// and an opening carved about an axis 3–4 mm off leaves a crescent of the lid on one side. The
-/// carving of a hull seen from around it is centred instead on the body it carves: a least-squares line through the slice centres
-/// (component-wise medians) of the upper half below the rim, and each slice's radius is measured
-/// again about it ([`sector_radius`]). Above the rim the rim slice's centre is kept.
+/// and an opening carved about an axis a few millimetres off leaves a crescent of the lid on one
+/// side. The carving of a hull seen from around it is centred instead on the body it carves: a
+/// least-squares line through the slice centres (component-wise medians) of the upper half below the
+/// rim, and each slice's radius is measured again about it ([`sector_radius`]). Above the rim the rim
+/// slice's centre is kept.
 #[derive(Clone, Debug, Serialize)]
 pub struct Carving {
     /// Centre of slice 0 and its drift per slice (x, y).
@@ -552,9 +554,9 @@ impl Carving {
         }
     }
 
-    /// The carving about the profile's own axis. From one side (a narrow baseline) the hull
-    /// stretches behind the object over the table it hides, so its slices' centres lie behind the
-    /// axis; the profile's axis was read from their fronts instead.
+    /// The carving about the profile's own axis, with the profile's radii. From one side (a narrow
+    /// baseline) the hull stretches behind the object over the table it hides, so its slices' centres
+    /// lie behind the axis; the profile's axis was read from their fronts instead.
     pub fn about_axis(profile: &Profile, rim: usize) -> Self {
         Self {
             centre0: profile.axis,
