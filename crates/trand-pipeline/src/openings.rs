@@ -190,12 +190,7 @@ fn label_of(views: &[TrainView], p: DVec3) -> Option<u16> {
 
 /// Instance id of the pixel `p` projects to, `None` outside the image or behind the camera.
 fn id_at(v: &TrainView, p: DVec3) -> Option<u16> {
-    let (x, y, _) = v.camera.project(p)?;
-    let (xi, yi) = (x.round(), y.round());
-    if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
-        return None;
-    }
-    Some(v.given_ids[yi as usize * v.width + xi as usize])
+    v.pixel_of(p).map(|o| v.given_ids[o])
 }
 
 /// Radial profile of one object's hull about a vertical axis, in slices of [`VOXEL_M`].
@@ -301,6 +296,12 @@ impl Profile {
     /// azimuths (up to a few centimetres), not on the object; the shape tests leave it out.
     pub fn top_slice(&self) -> usize {
         self.radius.iter().rposition(|&r| r > APEX_M).unwrap_or(0)
+    }
+
+    /// The slice holding height `z` (it may lie above the last one); `None` below slice 0.
+    pub fn slice_of(&self, z: f64) -> Option<usize> {
+        let k = ((z - self.z0) / VOXEL_M).floor();
+        (k >= 0.0).then_some(k as usize)
     }
 
     /// Height of the top of slice `k`.
@@ -478,11 +479,10 @@ impl Opening {
         if !self.others.is_empty() && self.is_others(p) {
             return false;
         }
-        let k = ((p.z - self.profile.z0) / VOXEL_M).floor();
-        if k < 0.0 {
+        let Some(k) = self.profile.slice_of(p.z) else {
             return false;
-        }
-        let k = (k as usize).min(self.carving.radius.len() - 1);
+        };
+        let k = k.min(self.carving.radius.len() - 1);
         let r = (p.truncate() - self.carving.centre(k)).length();
         if p.z > self.rim_z {
             return r < self.rim_radius + WALL_MARGIN_M && p.z < self.rim_z + 4.0 * self.rim_radius;
@@ -518,9 +518,8 @@ impl Carving {
     pub fn of(voxels: &[DVec3], profile: &Profile, rim: usize) -> Self {
         let mut by_slice: Vec<Vec<DVec2>> = vec![Vec::new(); rim + 1];
         for p in voxels {
-            let k = ((p.z - profile.z0) / VOXEL_M).floor();
-            if k >= 0.0 && (k as usize) <= rim {
-                by_slice[k as usize].push(p.truncate());
+            if let Some(k) = profile.slice_of(p.z).filter(|&k| k <= rim) {
+                by_slice[k].push(p.truncate());
             }
         }
         let centres: Vec<(f64, DVec2)> = (rim / 2..=rim)

@@ -487,17 +487,10 @@ fn visual_hull_points(
         }
         let mut seen = 0;
         for v in views {
-            let Some((x, y, _)) =
-                v.camera
-                    .project(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-            else {
+            let Some(o) = v.pixel_of(q) else {
                 continue;
             };
-            let (xi, yi) = (x.round(), y.round());
-            if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
-                continue;
-            }
-            if v.ids[yi as usize * v.width + xi as usize] == 0 {
+            if v.ids[o] == 0 {
                 return false;
             }
             seen += 1;

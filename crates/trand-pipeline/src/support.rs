@@ -86,16 +86,9 @@ impl<'a> Support<'a> {
     /// Whether the table under `p` projects onto an object pixel in every view that sees it.
     pub fn holds(&self, p: DVec3) -> bool {
         let q = DVec3::new(p.x, p.y, self.height);
-        self.views.iter().all(|v| {
-            let Some((x, y, _)) = v.camera.project(q) else {
-                return true;
-            };
-            let (xi, yi) = (x.round(), y.round());
-            if xi < 0.0 || yi < 0.0 || xi >= v.width as f64 || yi >= v.height as f64 {
-                return true;
-            }
-            v.given_ids[yi as usize * v.width + xi as usize] != 0
-        })
+        self.views
+            .iter()
+            .all(|v| v.pixel_of(q).is_none_or(|o| v.given_ids[o] != 0))
     }
 }
 

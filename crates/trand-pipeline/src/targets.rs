@@ -51,6 +51,20 @@ pub struct TrainView {
     pub band: Vec<bool>,
 }
 
+impl TrainView {
+    /// Index of the pixel (row-major, rounded to the nearest centre) that `p` projects to: `None`
+    /// behind the camera or outside the image. The mask-reading tests (visual hull, open-vessel and
+    /// support priors) all look a point up this way.
+    pub fn pixel_of(&self, p: glam::DVec3) -> Option<usize> {
+        let (x, y, _) = self.camera.project(p)?;
+        let (xi, yi) = (x.round(), y.round());
+        if xi < 0.0 || yi < 0.0 || xi >= self.width as f64 || yi >= self.height as f64 {
+            return None;
+        }
+        Some(yi as usize * self.width + xi as usize)
+    }
+}
+
 /// The training views for a coarse level of a [`trand_train::config::ResolutionSchedule`], same order
 /// as the training views.
 #[derive(Clone, Debug)]
