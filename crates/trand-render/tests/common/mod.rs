@@ -20,12 +20,16 @@ pub fn load_fixture(name: &str) -> Fixture {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/surfel-raster")
         .join(name);
-    let mut npz = npyz::npz::NpzArchive::open(&path)
-        .unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
-    let names: Vec<String> = npz.array_names().map(str::to_owned).collect();
+    let file =
+        std::fs::File::open(&path).unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
+    let mut npz = zip::ZipArchive::new(std::io::BufReader::new(file))
+        .unwrap_or_else(|e| panic!("read {} as a zip archive: {e}", path.display()));
     let mut arrays = std::collections::HashMap::new();
-    for n in names {
-        let a = npz.by_name(&n).expect("read").expect("present");
+    for i in 0..npz.len() {
+        let entry = npz.by_index(i).expect("zip entry");
+        let n = entry.name().trim_end_matches(".npy").to_owned();
+        let a = npyz::NpyFile::new(entry)
+            .unwrap_or_else(|e| panic!("{}: array {n}: {e}", path.display()));
         let v = if a.dtype() == npyz::DType::new_scalar("<i8".parse().expect("type string")) {
             a.into_vec::<i64>()
                 .expect("i64")
