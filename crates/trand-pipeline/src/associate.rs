@@ -162,12 +162,7 @@ struct Hull {
 }
 
 fn id_at(cam: &Camera, ids: &[u16], w: usize, h: usize, p: DVec3) -> Option<u16> {
-    let (x, y, _) = cam.project(p)?;
-    let (xi, yi) = (x.round(), y.round());
-    if xi < 0.0 || yi < 0.0 || xi >= w as f64 || yi >= h as f64 {
-        return None;
-    }
-    Some(ids[yi as usize * w + xi as usize])
+    crate::targets::pixel_index(cam, (w, h), p).map(|o| ids[o])
 }
 
 /// A kept voxel: centre, the id each view shows, the view that shows background.

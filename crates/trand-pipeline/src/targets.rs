@@ -52,17 +52,22 @@ pub struct TrainView {
 }
 
 impl TrainView {
-    /// Index of the pixel (row-major, rounded to the nearest centre) that `p` projects to: `None`
-    /// behind the camera or outside the image. The mask-reading tests (visual hull, open-vessel and
+    /// [`pixel_index`] in this view's image. The mask-reading tests (visual hull, open-vessel and
     /// support priors) all look a point up this way.
     pub fn pixel_of(&self, p: glam::DVec3) -> Option<usize> {
-        let (x, y, _) = self.camera.project(p)?;
-        let (xi, yi) = (x.round(), y.round());
-        if xi < 0.0 || yi < 0.0 || xi >= self.width as f64 || yi >= self.height as f64 {
-            return None;
-        }
-        Some(yi as usize * self.width + xi as usize)
+        pixel_index(&self.camera, (self.width, self.height), p)
     }
+}
+
+/// Index of the pixel (row-major, rounded to the nearest centre) of a `w × h` image that `p`
+/// projects to through `camera`: `None` behind the camera or outside the image.
+pub fn pixel_index(camera: &Camera, (w, h): (usize, usize), p: glam::DVec3) -> Option<usize> {
+    let (x, y, _) = camera.project(p)?;
+    let (xi, yi) = (x.round(), y.round());
+    if xi < 0.0 || yi < 0.0 || xi >= w as f64 || yi >= h as f64 {
+        return None;
+    }
+    Some(yi as usize * w + xi as usize)
 }
 
 /// The training views for a coarse level of a [`trand_train::config::ResolutionSchedule`], same order
