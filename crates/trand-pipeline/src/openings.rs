@@ -208,6 +208,10 @@ pub struct Profile {
     pub elongation: f64,
     /// Horizontal drift of the slice centres per unit height (0 for a vertical axis).
     pub lean: f64,
+    /// Per slice, [`sector_radius`] about the slice's own centre (its voxels' component-wise
+    /// median) instead of the axis: a bottle's neck off an axis misread by a few millimetres still
+    /// shows as a column ([`Profile::neck_top`]).
+    pub own_radius: Vec<f64>,
 }
 
 impl Profile {
@@ -250,6 +254,10 @@ impl Profile {
             .iter()
             .map(|s| sector_radius(s, axis))
             .collect();
+        let own_radius = by_slice[..end]
+            .iter()
+            .map(|s| median_point(s).map_or(0.0, |c| sector_radius(s, c)))
+            .collect();
         let elongation = match baseline {
             Baseline::Wide => elongation(&by_slice[..end].concat()),
             Baseline::Narrow { .. } => 1.0,
@@ -260,6 +268,7 @@ impl Profile {
             z0,
             radius,
             lean,
+            own_radius,
         })
     }
 
@@ -296,6 +305,21 @@ impl Profile {
     /// azimuths (up to a few centimetres), not on the object; the shape tests leave it out.
     pub fn top_slice(&self) -> usize {
         self.radius.iter().rposition(|&r| r > APEX_M).unwrap_or(0)
+    }
+
+    /// The highest slice wider than [`APEX_M`] about its own centre, or [`Profile::top_slice`] if
+    /// higher. Where the profile's axis is a few millimetres off (a raised object's foot mixes with
+    /// its support), a bottle's neck reads as an apex about the axis (the radius is a lower quartile
+    /// over sectors, and the sectors away from the neck see only its near edge, or nothing), and its
+    /// shoulder as a rim under a roof; about its own centre the neck keeps its width, while an apex
+    /// spike one or two voxels thick stays under [`APEX_M`].
+    pub fn neck_top(&self) -> usize {
+        let own = self
+            .own_radius
+            .iter()
+            .rposition(|&r| r > APEX_M)
+            .unwrap_or(0);
+        own.max(self.top_slice())
     }
 
     /// The slice holding height `z` (it may lie above the last one); `None` below slice 0.
@@ -869,7 +893,7 @@ fn open_top(
     let rim_z = profile.slice_top(rim);
     // Above a flat rim the hull is only the roof, at most `R tan e` high (the silhouette planes meet
     // over the axis); a bottle's shoulder is followed by a neck that stands higher.
-    let above = profile.top_slice().saturating_sub(rim) as f64 * VOXEL_M;
+    let above = profile.neck_top().saturating_sub(rim) as f64 * VOXEL_M;
     if above > ROOF_SLACK * rim_radius * baseline.roof_rise() * elevation.tan() + 2.0 * VOXEL_M {
         return Err(Closed::NarrowTop);
     }

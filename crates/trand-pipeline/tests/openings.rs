@@ -480,6 +480,34 @@ fn a_few_stray_voxels_above_a_gap_are_not_the_top_of_the_profile() {
 }
 
 #[test]
+fn a_neck_beside_a_misread_axis_is_still_the_top_and_a_ridge_is_not() {
+    use trand_pipeline::openings::{Profile, VOXEL_M};
+    // A bottle: a 3 cm body to 5.6 cm, a 7 mm neck above, its foot 5 mm off (the profile's axis
+    // is the foot's: too little to count as a lean).
+    let bottle = cylinder_voxels(0.0, 0.005, |k| if k < 28 { 0.03 } else { 0.007 });
+    let p = Profile::of(&bottle).unwrap();
+    assert!(p.axis[0] > 0.004, "axis {:?}", p.axis);
+    assert!(
+        p.top_slice() < 28,
+        "about the axis the neck reads as an apex"
+    );
+    assert_eq!(p.neck_top(), 39);
+    // A tumbler-sized cylinder whose top 4 slices are a ridge two voxels thick and 4 cm long (where
+    // a few views' silhouette planes meet): not a neck.
+    let mut roofed = cylinder_voxels(0.0, 0.0, |k| if k < 36 { 0.03 } else { 0.0 });
+    for k in 36..40 {
+        for i in -10i32..10 {
+            for y in [-0.5, 0.5] {
+                let x = (i as f64 + 0.5) * VOXEL_M;
+                roofed.push(DVec3::new(x, y * VOXEL_M, (k as f64 + 0.5) * VOXEL_M));
+            }
+        }
+    }
+    let p = Profile::of(&roofed).unwrap();
+    assert_eq!((p.top_slice(), p.neck_top()), (35, 35));
+}
+
+#[test]
 fn a_raised_object_leaning_by_its_foot_only_is_upright_about_its_body() {
     use trand_pipeline::openings::{MAX_LEAN, Profile};
     let raised = Profile::of(&cylinder_with_shifted_foot(0.05)).unwrap();
