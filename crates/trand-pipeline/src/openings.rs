@@ -208,10 +208,10 @@ pub struct Profile {
     pub elongation: f64,
     /// Horizontal drift of the slice centres per unit height (0 for a vertical axis).
     pub lean: f64,
-    /// Per slice, [`sector_radius`] about the slice's own centre (its voxels' component-wise
-    /// median) instead of the axis: a bottle's neck off an axis misread by a few millimetres still
-    /// shows as a column ([`Profile::neck_top`]).
-    pub own_radius: Vec<f64>,
+    /// The highest slice whose [`sector_radius`] about its own centre (its voxels' component-wise
+    /// median) instead of the axis exceeds [`APEX_M`] (0 if none): a bottle's neck off an axis
+    /// misread by a few millimetres still shows as a column ([`Profile::neck_top`]).
+    pub own_top: usize,
 }
 
 impl Profile {
@@ -254,10 +254,11 @@ impl Profile {
             .iter()
             .map(|s| sector_radius(s, axis))
             .collect();
-        let own_radius = by_slice[..end]
+        // From the top down: only the slices above the first wide one are measured.
+        let own_top = by_slice[..end]
             .iter()
-            .map(|s| median_point(s).map_or(0.0, |c| sector_radius(s, c)))
-            .collect();
+            .rposition(|s| median_point(s).is_some_and(|c| sector_radius(s, c) > APEX_M))
+            .unwrap_or(0);
         let elongation = match baseline {
             Baseline::Wide => elongation(&by_slice[..end].concat()),
             Baseline::Narrow { .. } => 1.0,
@@ -268,7 +269,7 @@ impl Profile {
             z0,
             radius,
             lean,
-            own_radius,
+            own_top,
         })
     }
 
@@ -307,19 +308,13 @@ impl Profile {
         self.radius.iter().rposition(|&r| r > APEX_M).unwrap_or(0)
     }
 
-    /// The highest slice wider than [`APEX_M`] about its own centre, or [`Profile::top_slice`] if
-    /// higher. Where the profile's axis is a few millimetres off (a raised object's foot mixes with
+    /// [`Profile::own_top`], or [`Profile::top_slice`] if higher. Where the profile's axis is a few millimetres off (a raised object's foot mixes with
     /// its support), a bottle's neck reads as an apex about the axis (the radius is a lower quartile
     /// over sectors, and the sectors away from the neck see only its near edge, or nothing), and its
     /// shoulder as a rim under a roof; about its own centre the neck keeps its width, while an apex
     /// spike one or two voxels thick stays under [`APEX_M`].
     pub fn neck_top(&self) -> usize {
-        let own = self
-            .own_radius
-            .iter()
-            .rposition(|&r| r > APEX_M)
-            .unwrap_or(0);
-        own.max(self.top_slice())
+        self.own_top.max(self.top_slice())
     }
 
     /// The slice holding height `z` (it may lie above the last one); `None` below slice 0.
