@@ -614,6 +614,10 @@ fn line_fit(pts: &[(f64, DVec2)]) -> Option<(DVec2, DVec2)> {
 pub struct VesselTop {
     pub object_id: u16,
     pub voxels: usize,
+    /// The opening was found from the given poses and kept where the settled poses' hull closed it
+    /// (see `reconstruct::retake_openings`).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub from_given_poses: bool,
     #[serde(flatten)]
     pub top: Top,
 }
@@ -668,6 +672,7 @@ pub fn classify(
         report.push(VesselTop {
             object_id: id,
             voxels: voxels.len(),
+            from_given_poses: false,
             top,
         });
     }
