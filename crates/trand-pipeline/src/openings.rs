@@ -482,6 +482,15 @@ pub fn voxel_key(p: DVec3) -> [i64; 3] {
 }
 
 impl Opening {
+    /// The decision this opening reports in `run.json`'s `vessel_tops`.
+    pub fn top(&self) -> Top {
+        Top::Open {
+            shape: self.shape,
+            rim_z: self.rim_z,
+            rim_radius: self.rim_radius,
+        }
+    }
+
     /// Whether `p` lies in or next to (one voxel) a voxel of [`Opening::others`]; the hull's grid
     /// need not be aligned with [`voxel_key`]'s, which the margin covers.
     fn is_others(&self, p: DVec3) -> bool {
@@ -659,11 +668,7 @@ pub fn classify(
     for (&id, voxels) in hull {
         let top = match open_top(id, voxels, hull, cameras, ceiling, baseline) {
             Ok(o) => {
-                let t = Top::Open {
-                    shape: o.shape,
-                    rim_z: o.rim_z,
-                    rim_radius: o.rim_radius,
-                };
+                let t = o.top();
                 openings.push(o);
                 t
             }

@@ -365,9 +365,8 @@ pub fn find_openings(
 /// corrections), given the decision from the given poses. An opening the given poses found is kept
 /// where the settled poses' hull closes it: errors destroy a rim under a roof more easily than they make
 /// one. A pose error blurs the rims, which the settled poses restore; boundary errors move the settled
-/// cameras instead, and read an upright bowl or wine glass as leaning (lean 0.13–0.15 from the given
-/// poses, over 0.18 from the settled ones on containers scenes; BENCHMARKS.md §8). Over the 84 scenes
-/// and perturbed copies `examples/vessel_tops` reads, the given poses never opened a closed object.
+/// cameras instead, and can tip an upright bowl or wine glass over the lean limit (BENCHMARKS.md §8
+/// measures both, and how often the given poses opened a closed object: never).
 fn retake_openings(
     given: Vec<Opening>,
     given_tops: Vec<VesselTop>,
@@ -380,11 +379,7 @@ fn retake_openings(
         &given_tops,
         openings,
         tops,
-        |o| Top::Open {
-            shape: o.shape,
-            rim_z: o.rim_z,
-            rim_radius: o.rim_radius,
-        },
+        Opening::top,
     ))
 }
 
