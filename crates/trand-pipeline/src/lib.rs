@@ -22,6 +22,7 @@ pub mod checkpoint;
 pub mod contact;
 pub mod detect;
 pub mod export;
+pub mod front_fill;
 pub mod openings;
 pub mod outputs;
 pub mod reconstruct;

@@ -22,6 +22,7 @@ use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_f
 
 use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
+use crate::front_fill::{self, FrontFill};
 use crate::openings::{Baseline, Opening, Top, VesselTop};
 use crate::support::{Support, SupportPrior};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
@@ -91,6 +92,8 @@ pub struct ReconstructOptions {
     pub identity: Identity,
     /// The table-support restriction of the visual hull (see [`crate::support`]).
     pub support: SupportPrior,
+    /// Whether holes in an object's front are filled after training (see [`crate::front_fill`]).
+    pub front_fill: FrontFill,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -107,6 +110,7 @@ impl Default for ReconstructOptions {
             openings: OpeningPrior::Carve,
             identity: Identity::Auto,
             support: SupportPrior::Auto,
+            front_fill: FrontFill::HullFront,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -187,6 +191,8 @@ pub struct Reconstruction {
     pub identity: IdentityReport,
     /// Whether the opening prior was decided again with the settled pose corrections.
     pub openings_retaken: bool,
+    /// Surfels [`crate::front_fill`] added (0 when it is off or not applied).
+    pub front_fill_added: usize,
     /// The pose refinement the run used (fixed for a narrow baseline, whatever was asked for).
     pub pose_refinement: trand_train::PoseRefinement,
     /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
@@ -538,21 +544,11 @@ fn visual_hull_points(
     let b = hull_box(views)?;
     let mut rng = Pcg64::seed_from_u64(cfg.seed);
     let inside = |p: [f32; 3]| {
-        let q = glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-        if support.is_some_and(|s| !s.holds(q)) {
-            return false;
-        }
-        let mut seen = 0;
-        for v in views {
-            let Some(o) = v.pixel_of(q) else {
-                continue;
-            };
-            if v.ids[o] == 0 {
-                return false;
-            }
-            seen += 1;
-        }
-        seen >= 2
+        in_visual_hull(
+            views,
+            support,
+            glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64),
+        )
     };
     let mut kept = Vec::with_capacity(target);
     // Draw in batches until enough points survive (or a budget of samples is spent).
@@ -572,6 +568,88 @@ fn visual_hull_points(
         ));
     }
     Ok(kept)
+}
+
+/// Whether `q` projects onto an object pixel in every view that sees it, and at least two do (and
+/// passes the support prior's test, where it applies).
+fn in_visual_hull(views: &[TrainView], support: Option<&Support<'_>>, q: glam::DVec3) -> bool {
+    if support.is_some_and(|s| !s.holds(q)) {
+        return false;
+    }
+    let mut seen = 0;
+    for v in views {
+        let Some(o) = v.pixel_of(q) else {
+            continue;
+        };
+        if v.ids[o] == 0 {
+            return false;
+        }
+        seen += 1;
+    }
+    seen >= 2
+}
+
+/// The surfels [`front_fill::fill`] adds to `surfels` trained from `views` with `poses`: the views at
+/// their corrected cameras, the visual hull they carve without the openings.
+fn front_fill_surfels(
+    surfels: &Surfels,
+    views: &[TrainView],
+    poses: &trand_train::PoseCorrections,
+    openings: &[Opening],
+    cfg: &TrainConfig,
+) -> Result<Surfels> {
+    let trained: Vec<TrainView> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| TrainView {
+            camera: poses.camera(i, &v.camera),
+            ..v.clone()
+        })
+        .collect();
+    let settings = trand_render::RenderSettings {
+        background: cfg.background,
+        near: cfg.near as f64,
+        sh_degree: Some(cfg.sh_degree),
+        ..Default::default()
+    };
+    let hull = CarvedHull {
+        views: &trained,
+        openings,
+    };
+    front_fill::fill(surfels, &trained, &settings, &hull)
+}
+
+/// The visual hull of `views` and the openings carved from it, as [`front_fill`] reads them.
+struct CarvedHull<'a> {
+    views: &'a [TrainView],
+    openings: &'a [Opening],
+}
+
+/// How far under an opening's rim the hull's band counts as its rim (see [`front_fill::Hull::at_rim`]).
+const RIM_BAND_M: f64 = 0.005;
+
+impl front_fill::Hull for CarvedHull<'_> {
+    fn holds(&self, p: glam::DVec3, c: u8) -> bool {
+        in_visual_hull(self.views, None, p)
+            && self
+                .views
+                .iter()
+                .filter(|v| v.pixel_of(p).is_some_and(|o| v.labels[o] == c))
+                .count()
+                >= 2
+    }
+
+    fn carved(&self, p: glam::DVec3) -> bool {
+        let q = [p.x as f32, p.y as f32, p.z as f32];
+        self.openings.iter().any(|o| o.carves(q))
+    }
+
+    fn at_rim(&self, p: glam::DVec3) -> bool {
+        self.openings.iter().any(|o| {
+            let lifted = [p.x as f32, p.y as f32, (o.rim_z + 0.001).max(p.z) as f32];
+            p.z > o.rim_z - RIM_BAND_M && o.carves(lifted)
+        })
+    }
 }
 
 /// The support prior's test for these views, when [`ReconstructOptions::support`] applies to them.
@@ -877,10 +955,20 @@ pub fn reconstruct_from(
             break;
         }
     }
-    let optimise_s = t1.elapsed().as_secs_f64();
     let poses = trainer.poses;
     let pose_refinement = trainer.cfg.pose;
     let mut surfels = trainer.surfels;
+    let mut front_fill_added = 0;
+    // On a narrow baseline (the support prior applied) the hull reaches far in front of the objects.
+    if opts.front_fill == FrontFill::HullFront
+        && opts.method.supervision() == Supervision::ObjectAware
+        && !support_applied
+    {
+        let added = front_fill_surfels(&surfels, &views, &poses, &openings, &trainer.cfg)?;
+        front_fill_added = added.len();
+        surfels.append(&added);
+    }
+    let optimise_s = t1.elapsed().as_secs_f64();
     let num_trained = surfels.len();
     if opts.method.supervision() == Supervision::ObjectAware {
         let keep = object_filter(&surfels);
@@ -899,6 +987,7 @@ pub fn reconstruct_from(
         identity,
         support_applied,
         openings_retaken,
+        front_fill_added,
         pose_refinement,
         poses,
     })

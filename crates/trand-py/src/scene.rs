@@ -136,6 +136,7 @@ impl Scene {
             "vessel_tops": rec.vessel_tops,
             "identity": rec.identity,
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
+            "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },
             "timings": {
                 "preprocess_s": rec.preprocess_s,
                 "optimise_s": rec.optimise_s,

@@ -21,6 +21,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
+use trand_pipeline::front_fill::FrontFill;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
 
@@ -68,6 +69,10 @@ pub struct Args {
     /// view, which pins the depth a narrow baseline leaves open.
     #[arg(long, value_enum)]
     pub support: Option<SupportPrior>,
+    /// Holes in a glass's front: hull-front (default: where a training view sees through an object
+    /// to its back wall after training, a surfel is put at the visual hull's front) or off.
+    #[arg(long, value_enum)]
+    pub front_fill: Option<FrontFill>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -118,6 +123,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(i) = a.identity {
         o.identity = i;
+    }
+    if let Some(f) = a.front_fill {
+        o.front_fill = f;
     }
     if let Some(p) = a.support {
         o.support = p;
@@ -328,6 +336,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .detail("depth_views", depth_at)
         .detail("vessel_tops", &rec.vessel_tops)
         .detail("identity", &rec.identity)
+        .detail(
+            "front_fill",
+            serde_json::json!({ "mode": opts.front_fill, "surfels_added": rec.front_fill_added }),
+        )
         .detail(
             "support_prior",
             serde_json::json!({ "mode": opts.support, "applied": rec.support_applied }),
