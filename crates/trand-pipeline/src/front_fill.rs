@@ -111,7 +111,7 @@ pub fn fill(
     for v in views {
         let out = render_with_objects(surfels, &v.camera, settings)?;
         assert_eq!(
-            (out.width, out.height),
+            (out.width as usize, out.height as usize),
             (v.width, v.height),
             "{}: render size",
             v.name
