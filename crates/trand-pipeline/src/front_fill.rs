@@ -10,30 +10,33 @@
 //!
 //! Such a hole shows in the training views themselves. For every interior pixel of an object's mask
 //! (stride [`STRIDE`]) the trained model's median depth `d` is compared with the object's visual hull
-//! along the pixel's ray, sampled every [`STEP_M`]. The ray crossed the object before it stopped when
+//! along the pixel's ray, sampled every [`STEP_M`] of camera depth up to [`REACH_M`] in front of `d`.
+//! The hull's *material* is the hull outside every carved opening. The ray crossed the object before
+//! it stopped when
 //! * the median surfel lies at the far end of the hull's material (inside the hull, outside every
 //!   carved opening): the material ends within [`EXIT_M`] behind `d`; or inside a carved opening (a
 //!   back wall seen through a hole in the front wall);
-//! * going back along the ray through the hull (openings included) to where it entered, the first
-//!   material met (the front) lies more than [`THICKNESS_M`] in front of `d`: less is within the depth
-//!   tolerance anyway, and is the scale of the hull's excess over concave shapes;
-//! * the median surfel lies [`ABOVE_BASE_M`] or more above the object's base (the lowest of its
-//!   trained surfels), and the front is not at an
-//!   opening's rim (where the hull's wall is wider than the glass and a ray from above may pass over
-//!   it into the opening);
+//! * going back along the ray through the hull (openings included) to where it entered, within
+//!   [`REACH_M`], the first material met from the entry (the front) lies more than [`THICKNESS_M`] in
+//!   front of `d`: less is within the depth tolerance anyway, and is the scale of the hull's excess
+//!   over concave shapes;
+//! * the hull 3 mm in front of `d` lies [`ABOVE_BASE_M`] or more above the object's base (the
+//!   [`BASE_QUANTILE`] height quantile of its trained surfels above the table), and the front is not
+//!   at or above an opening's rim (where a ray from above may pass over the glass into the opening);
 //! * the pixel is a pit in the object's depth: the nearest depth of the same object within
 //!   [`AROUND_PX`] lies more than [`THICKNESS_M`] in front of `d`, and the front no more than
 //!   [`FRONT_SLACK_M`] in front of that.
 //!
 //! Then a surfel of that object is put at the front (the hull's surface, at most the mask error away
-//! from the true one), facing the camera, one stride's footprint wide, nearly opaque. The object's
+//! from the true one), facing the camera, its σ one stride's footprint, nearly opaque. The object's
 //! hull ([`Hull::holds`]) asks the object's channel of at least two views, so that the hull of an
 //! object standing on another ends where the other begins.
 //!
 //! The fill runs once, after training, on the views at their corrected poses; every view is tested
 //! against the same trained model, so the result does not depend on the order of the views or the
-//! thread count. On a narrow baseline the hull reaches far in front of the objects and the fill is
-//! not applied (see `reconstruct`).
+//! thread count. Where the support prior applies (a narrow baseline) the hull reaches far in front of
+//! the objects and the fill is not applied (see `reconstruct`). Several views may fill the same hole;
+//! `run.json` counts every surfel added.
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -56,14 +59,14 @@ pub enum FrontFill {
     Off,
 }
 
-/// Pixel stride of the tested grid; a filled surfel is one stride's footprint wide.
+/// Pixel stride of the tested grid; a filled surfel's σ is one stride's footprint.
 pub const STRIDE: usize = 2;
-/// Step of the samples along a ray (metres).
+/// Step of the samples along a ray, in camera depth (metres).
 pub const STEP_M: f64 = 0.001;
-/// How far behind the median depth the hull run may end for the ray to count as having crossed the
-/// object (metres): the hull's back surface lies within a few pixels of the true one.
+/// How far behind the median depth the hull's material may end for the ray to count as having
+/// crossed the object (metres): the hull's back surface lies within a few pixels of the true one.
 pub const EXIT_M: f64 = 0.005;
-/// How far in front of the median depth the hull run must begin (metres): a front missed by less is
+/// How far in front of the median depth the front must lie (metres): a front missed by less is
 /// within the depth tolerance anyway, and thin walls are not mistaken for the object's depth.
 pub const THICKNESS_M: f64 = 0.025;
 /// Half-width of the window whose nearest depth of the same object stands for the front around a
@@ -76,9 +79,9 @@ const FRONT_SLACK_M: f64 = 0.01;
 /// glass's foot, over which the hull is its bowl's shadow), not a back wall.
 pub const ABOVE_BASE_M: f64 = 0.012;
 /// The share of an object's surfels below its base.
-const BASE_QUANTILE: f64 = 0.01;
+pub const BASE_QUANTILE: f64 = 0.01;
 /// How far in front of the median depth the ray is sampled (metres).
-const REACH_M: f64 = 0.3;
+pub const REACH_M: f64 = 0.3;
 /// Pixels of the same object all around a tested pixel, so that a mask's edge is never tested.
 const INTERIOR_PX: isize = 2;
 /// Opacity of a filled surfel.
@@ -93,8 +96,8 @@ pub trait Hull: Sync {
     fn holds(&self, p: DVec3, c: u8) -> bool;
     /// Inside an open vessel's carved region (see [`crate::openings::Opening::carves`]).
     fn carved(&self, p: DVec3) -> bool;
-    /// At an opening's rim, within a few millimetres under it: the hull's wall there is wider than the
-    /// vessel's, and a ray entering it from above may pass over the glass into the opening.
+    /// At an opening's rim, within a few millimetres under it, or above the opening: a ray entering
+    /// the hull there from above may pass over the glass into the opening.
     fn at_rim(&self, p: DVec3) -> bool;
 }
 
@@ -110,12 +113,12 @@ pub fn fill(
     let bases = object_bases(surfels);
     for v in views {
         let out = render_with_objects(surfels, &v.camera, settings)?;
-        assert_eq!(
-            (out.width as usize, out.height as usize),
-            (v.width, v.height),
-            "{}: render size",
-            v.name
-        );
+        if (out.width as usize, out.height as usize) != (v.width, v.height) {
+            return Err(crate::PipelineError::Invalid(format!(
+                "{}: rendered {}x{} for a {}x{} view",
+                v.name, out.width, out.height, v.width, v.height
+            )));
+        }
         let rows: Vec<Vec<Surfel>> = (0..v.height)
             .into_par_iter()
             .step_by(STRIDE)
@@ -291,13 +294,9 @@ fn camera_ray(v: &TrainView, x: usize, y: usize) -> DVec3 {
 
 /// A unit quaternion `(w, x, y, z)` turning the surfel's normal (its local z axis) onto `n`.
 fn quat_facing(n: DVec3) -> [f32; 4] {
-    // Half-way rotation from z to n: q = (1 + z·n, z × n), normalised; n = −z turns about x.
-    let w = 1.0 + n.z;
-    if w < 1e-9 {
-        return [0.0, 1.0, 0.0, 0.0];
-    }
-    let q = glam::DVec4::new(w, -n.y, n.x, 0.0).normalize();
-    [q.x as f32, q.y as f32, q.z as f32, q.w as f32]
+    // The shortest arc from z to n; glam turns n = −z about an axis perpendicular to z.
+    let q = glam::DQuat::from_rotation_arc(DVec3::Z, n.normalize());
+    [q.w as f32, q.x as f32, q.y as f32, q.z as f32]
 }
 
 #[cfg(test)]
@@ -306,9 +305,10 @@ mod tests {
     use trand_core::{Camera, Intrinsics};
 
     /// A glass of radius 4 cm from z = 0 to 10 cm about the z axis; `open` carves its inside (walls
-    /// 5 mm) above a 1 cm base, with the rim at 10 cm.
+    /// 5 mm) above a 1 cm base, with the rim at 10 cm and [`Hull::at_rim`] above `rim_from`.
     struct Cylinder {
         open: bool,
+        rim_from: f64,
     }
 
     impl Hull for Cylinder {
@@ -319,7 +319,7 @@ mod tests {
             self.open && p.truncate().length() < 0.035 && p.z > 0.01
         }
         fn at_rim(&self, p: DVec3) -> bool {
-            self.open && p.z > 0.095
+            self.open && p.z > self.rim_from
         }
     }
 
@@ -359,7 +359,10 @@ mod tests {
 
     #[test]
     fn a_median_on_the_back_wall_of_a_closed_object_is_filled_at_its_front() {
-        let hull = Cylinder { open: false };
+        let hull = Cylinder {
+            open: false,
+            rim_from: 0.095,
+        };
         let v = view(DVec3::new(0.5, 0.0, 0.05));
         let (near, far) = crossings(&v, &hull);
         let (x, y) = (v.width / 2, v.height / 2);
@@ -378,7 +381,10 @@ mod tests {
 
     #[test]
     fn the_back_wall_seen_through_an_open_glass_s_front_wall_is_filled_at_the_front_wall() {
-        let hull = Cylinder { open: true };
+        let hull = Cylinder {
+            open: true,
+            rim_from: 0.095,
+        };
         let v = view(DVec3::new(0.5, 0.0, 0.05));
         let (near, far) = crossings(&v, &hull);
         let (x, y) = (v.width / 2, v.height / 2);
@@ -396,17 +402,41 @@ mod tests {
 
     #[test]
     fn looking_into_an_opening_from_above_is_no_hole() {
-        let hull = Cylinder { open: true };
+        let hull = Cylinder {
+            open: true,
+            rim_from: 0.095,
+        };
         let v = view(DVec3::new(0.0, 0.001, 0.6));
         let (near, _) = crossings(&v, &hull);
         let (x, y) = (v.width / 2, v.height / 2);
-        // A surfel floating in the opening, 5 cm under the top: only the opening lies in front of it.
+        // A surfel floating in the opening, 5 cm under the top: only the opening lies in front of it,
+        // whether or not the rim's band is told apart.
         assert_eq!(crossed_front(&v, (x, y), near + 0.05, 0.0, &hull), None);
+        let no_band = Cylinder {
+            open: true,
+            rim_from: f64::INFINITY,
+        };
+        assert_eq!(crossed_front(&v, (x, y), near + 0.05, 0.0, &no_band), None);
+        // Nor is the glass's bottom, seen from above through the opening.
+        let bottom = near + 0.09;
+        assert_eq!(
+            crossed_front(&v, (x, y), bottom + 0.001, 0.0, &no_band),
+            None
+        );
+        // Closed, the same surfel lies inside the material, short of its back: no hole either.
+        let closed = Cylinder {
+            open: false,
+            rim_from: f64::INFINITY,
+        };
+        assert_eq!(crossed_front(&v, (x, y), near + 0.05, 0.0, &closed), None);
     }
 
     #[test]
     fn a_surface_at_the_object_s_base_is_not_taken_for_a_back_wall() {
-        let hull = Cylinder { open: false };
+        let hull = Cylinder {
+            open: false,
+            rim_from: 0.095,
+        };
         let v = view(DVec3::new(0.0, 0.001, 0.6));
         let (near, far) = crossings(&v, &hull);
         let (x, y) = (v.width / 2, v.height / 2);

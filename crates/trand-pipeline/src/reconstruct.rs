@@ -959,7 +959,10 @@ pub fn reconstruct_from(
     let pose_refinement = trainer.cfg.pose;
     let mut surfels = trainer.surfels;
     let mut front_fill_added = 0;
-    // On a narrow baseline (the support prior applied) the hull reaches far in front of the objects.
+    // Where the support prior applies (a narrow baseline, by default) the hull reaches far in front
+    // of the objects: no fill. With the prior forced off, a narrow baseline is filled like any other
+    // and the pit rule (`front_fill` module docs) keeps the fronts near the trained depth. The
+    // ablations with object supervision are filled too: the fill reads only the object channels.
     if opts.front_fill == FrontFill::HullFront
         && opts.method.supervision() == Supervision::ObjectAware
         && !support_applied
