@@ -75,6 +75,15 @@ pub const VOXEL_M: f64 = 0.002;
 /// Radial margin kept inside the profile for the wall (m): glass walls are 2–5 mm thick and the hull
 /// overestimates the outer surface by about a voxel.
 pub const WALL_MARGIN_M: f64 = 0.006;
+/// Height below the rim over which the wall keeps only [`LIP_WALL_M`] (m). Looking into an open
+/// vessel, every ray over the near rim crosses the top of the wall: there the body's
+/// [`WALL_MARGIN_M`] is a ledge a few millimetres wider than the glass at the rim's height, which
+/// hides the far wall several centimetres deeper (the near errors of open vessels, BENCHMARKS.md §1). Lower down
+/// a thick wall only moves the far wall's inside a few millimetres.
+pub const LIP_BAND_M: f64 = 0.010;
+/// Wall kept within [`LIP_BAND_M`] of the rim, across a vertical wall (m): a glass wall's thickness;
+/// the hull's overestimate of the outer surface (about a voxel) stays on the kept side.
+pub const LIP_WALL_M: f64 = 0.003;
 /// Height above the hull's bottom below which nothing is carved (m): the vessel's base.
 pub const FLOOR_M: f64 = 0.005;
 /// A rim must be at least this wide (m): narrower tops (bottle necks) are not openings one can see into.
@@ -501,7 +510,8 @@ impl Opening {
     }
 
     /// Whether `p` lies in the carved region: above the rim within the rim's radius plus a margin,
-    /// or above the floor and more than [`WALL_MARGIN_M`] inside the profile.
+    /// or above the floor and more than [`WALL_MARGIN_M`] inside the profile; within [`LIP_BAND_M`]
+    /// below the rim, more than [`Carving::lip_margin`] inside the slice's own radius as well.
     pub fn carves(&self, p: [f32; 3]) -> bool {
         let p = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         if !self.others.is_empty() && self.is_others(p) {
@@ -518,7 +528,11 @@ impl Opening {
         if p.z < self.floor_z {
             return false;
         }
-        r < self.carving.radius[k] - WALL_MARGIN_M
+        let wall = self.carving.radius[k] - WALL_MARGIN_M;
+        if p.z > self.rim_z - LIP_BAND_M {
+            return r < wall.max(self.carving.slice_radius[k] - self.carving.lip_margin(k));
+        }
+        r < wall
     }
 }
 
@@ -539,6 +553,8 @@ pub struct Carving {
     pub drift: [f64; 2],
     /// Radius per slice about the centre line, up to the rim slice.
     pub radius: Vec<f64>,
+    /// Each slice's own radius about the centre line, before the rim window widens the last ones.
+    pub slice_radius: Vec<f64>,
 }
 
 impl Carving {
@@ -569,6 +585,7 @@ impl Carving {
             .collect();
         // The roof of a few views starts shallow at its edge and narrows the last slices below the
         // rim (see `RIM_WINDOW`): they are carved as wide as the widest of them.
+        let slice_radius = radius.clone();
         let window = rim.saturating_sub(RIM_WINDOW)..=rim;
         let rim_radius = radius[window.clone()].iter().fold(0.0f64, |a, &b| a.max(b));
         for r in &mut radius[window] {
@@ -578,6 +595,7 @@ impl Carving {
             centre0: centre0.to_array(),
             drift: drift.to_array(),
             radius,
+            slice_radius,
         }
     }
 
@@ -589,7 +607,23 @@ impl Carving {
             centre0: profile.axis,
             drift: [0.0, 0.0],
             radius: profile.radius[..=rim].to_vec(),
+            slice_radius: profile.radius[..=rim].to_vec(),
         }
+    }
+
+    /// Radial margin for the wall at slice `k` of the lip: a wall [`LIP_WALL_M`] thick whose radius
+    /// changes by `dr` per slice of height `h` is `LIP_WALL_M·√(1 + (dr/h)²)` wide across, and the
+    /// slice itself spans `|dr|`, so a bowl's flare keeps about the body's margin. `dr` is the central
+    /// difference of [`Carving::slice_radius`] (one-sided at the ends; the body's margin for a single
+    /// slice). Hull noise of a voxel between slices reads as slope and only widens the margin.
+    pub fn lip_margin(&self, k: usize) -> f64 {
+        let n = self.slice_radius.len();
+        let (lo, hi) = (k.saturating_sub(1), (k + 1).min(n - 1));
+        if hi == lo {
+            return WALL_MARGIN_M;
+        }
+        let dr = (self.slice_radius[hi] - self.slice_radius[lo]).abs() / (hi - lo) as f64;
+        LIP_WALL_M * (1.0 + (dr / VOXEL_M).powi(2)).sqrt() + dr
     }
 
     /// Centre of slice `k` (the rim slice's above the rim).

@@ -5,7 +5,8 @@ use glam::DVec3;
 use trand_core::{Camera, Intrinsics};
 use trand_pipeline::TrainView;
 use trand_pipeline::openings::{
-    Baseline, Closed, Opening, Shape, Top, VesselTop, classify, object_voxels, object_voxels_where,
+    Baseline, Carving, Closed, LIP_WALL_M, Opening, Shape, Top, VOXEL_M, VesselTop, WALL_MARGIN_M,
+    classify, object_voxels, object_voxels_where,
 };
 use trand_pipeline::support::{Support, SupportPrior};
 
@@ -346,6 +347,51 @@ fn the_carved_region_is_the_inside_and_the_roof_but_not_the_wall_or_the_base() {
     assert!(!o.carves([0.031, 0.0, 0.05]), "wall");
     assert!(!o.carves([0.0, 0.0, 0.002]), "base");
     assert!(!o.carves([0.08, 0.0, 0.05]), "outside");
+}
+
+#[test]
+fn the_lip_keeps_a_glass_thin_wall_where_the_body_keeps_its_margin() {
+    let openings = openings_of(&[tumbler([0.0, 0.0])]);
+    let o = &openings[0];
+    // A point `inside_by` inside slice `z`'s own radius, off the centre line along +x.
+    let probe = |z: f64, inside_by: f64| {
+        let k = o.profile.slice_of(z).unwrap();
+        let c = o.carving.centre(k);
+        let r = o.carving.slice_radius[k] - inside_by;
+        o.carves([(c.x + r) as f32, c.y as f32, z as f32])
+    };
+    let lip = o.rim_z - 0.003;
+    let margin = o.carving.lip_margin(o.profile.slice_of(lip).unwrap());
+    assert!(margin < WALL_MARGIN_M - 0.001, "lip margin {margin}");
+    assert!(probe(lip, margin + 0.0005), "a ledge inside the lip");
+    assert!(!probe(lip, margin - 0.0005), "the lip's wall");
+    assert!(
+        !probe(0.045, margin + 0.0005),
+        "the body keeps its wall margin"
+    );
+    assert!(probe(0.045, WALL_MARGIN_M + 0.003), "the body's inside");
+}
+
+#[test]
+fn a_flared_lip_keeps_a_wall_as_wide_across_as_its_slope_makes_it() {
+    let carving = |flare: f64| Carving {
+        centre0: [0.0, 0.0],
+        drift: [0.0, 0.0],
+        radius: vec![0.04; 6],
+        slice_radius: (0..6).map(|k| 0.03 + flare * k as f64 * VOXEL_M).collect(),
+    };
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(
+        close(carving(0.0).lip_margin(3), LIP_WALL_M),
+        "vertical wall"
+    );
+    // At 45° the wall is √2 times as wide across, and a slice spans one voxel of radius.
+    let m = carving(1.0).lip_margin(3);
+    assert!(close(m, LIP_WALL_M * 2f64.sqrt() + VOXEL_M), "{m}");
+    assert!(
+        close(carving(-1.0).lip_margin(5), m),
+        "the rim slice, narrowing"
+    );
 }
 
 #[test]
