@@ -173,12 +173,13 @@ impl ReconstructOptions {
 pub struct Reconstruction {
     /// The surfels kept at the end (object surfels, or all of them for plain 2DGS).
     pub surfels: Surfels,
-    /// Surfel count before the object filter.
+    /// Surfel count before the object filter (the front fill's surfels included).
     pub num_trained: usize,
     /// `(object id, channel)`.
     pub channels: Vec<(u16, usize)>,
     pub train_views: Vec<String>,
     pub preprocess_s: f64,
+    /// Training and the front fill after it.
     pub optimise_s: f64,
     /// `(iteration, loss)` of every iteration.
     pub curve: Vec<(u32, f32)>,
