@@ -473,6 +473,22 @@ mod tests {
     }
 
     #[test]
+    fn a_pixel_s_ray_at_camera_depth_t_projects_back_onto_the_pixel_at_depth_t() {
+        // Off-centre pixels of a camera looking down at an angle: a ray wrong in its axes, its
+        // sign or its scale would land elsewhere.
+        let v = view(DVec3::new(0.3, -0.2, 0.4));
+        for (x, y) in [(0, 0), (63, 0), (5, 40), (40, 17)] {
+            let p = v.camera.center() + camera_ray(&v, x, y) * 0.37;
+            let (u, w, z) = v.camera.project(p).expect("in front of the camera");
+            assert!(
+                (u - x as f64).abs() < 1e-9 && (w - y as f64).abs() < 1e-9,
+                "({x}, {y}) → ({u}, {w})"
+            );
+            assert!((z - 0.37).abs() < 1e-12, "depth {z}");
+        }
+    }
+
+    #[test]
     fn quat_facing_turns_the_local_normal_onto_the_target() {
         for n in [
             DVec3::Z,
