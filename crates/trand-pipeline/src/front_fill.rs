@@ -79,9 +79,9 @@ const FRONT_SLACK_M: f64 = 0.01;
 /// glass's foot, over which the hull is its bowl's shadow), not a back wall.
 pub const ABOVE_BASE_M: f64 = 0.012;
 /// The share of an object's surfels below its base.
-pub const BASE_QUANTILE: f64 = 0.01;
+const BASE_QUANTILE: f64 = 0.01;
 /// How far in front of the median depth the ray is sampled (metres).
-pub const REACH_M: f64 = 0.3;
+const REACH_M: f64 = 0.3;
 /// Pixels of the same object all around a tested pixel, so that a mask's edge is never tested.
 const INTERIOR_PX: isize = 2;
 /// Opacity of a filled surfel.

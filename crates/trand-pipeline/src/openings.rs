@@ -78,8 +78,8 @@ pub const WALL_MARGIN_M: f64 = 0.006;
 /// Height below the rim over which the wall keeps only [`LIP_WALL_M`] (m). Looking into an open
 /// vessel, every ray over the near rim crosses the top of the wall: there the body's
 /// [`WALL_MARGIN_M`] is a ledge a few millimetres wider than the glass at the rim's height, which
-/// hides the far wall several centimetres deeper (the near errors of open vessels, BENCHMARKS.md §1). Lower down
-/// a thick wall only moves the far wall's inside a few millimetres.
+/// hides the far wall several centimetres deeper (the near errors of open vessels, BENCHMARKS.md
+/// §1). Lower down a thick wall only moves the far wall's inside a few millimetres.
 pub const LIP_BAND_M: f64 = 0.010;
 /// Wall kept within [`LIP_BAND_M`] of the rim, across a vertical wall (m): a glass wall's thickness;
 /// the hull's overestimate of the outer surface (about a voxel) stays on the kept side.
