@@ -23,6 +23,7 @@ pub mod contact;
 pub mod detect;
 pub mod export;
 pub mod front_fill;
+pub mod mask_agreement;
 pub mod openings;
 pub mod outputs;
 pub mod reconstruct;

@@ -23,7 +23,8 @@ use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_f
 use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::front_fill::{self, FrontFill};
-use crate::openings::{Baseline, Opening, Top, VesselTop};
+use crate::mask_agreement::MaskAgreement;
+use crate::openings::{Baseline, Opening, Overhangs, Top, VesselTop};
 use crate::support::{Support, SupportPrior};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
@@ -192,6 +193,10 @@ pub struct Reconstruction {
     pub identity: IdentityReport,
     /// Whether the opening prior was decided again with the settled pose corrections.
     pub openings_retaken: bool,
+    /// How well the training masks agree (measured when the opening prior applies), and whether
+    /// surfels overhanging an opening's lip were carved for it ([`crate::openings::overhang`]).
+    pub mask_agreement: Option<MaskAgreement>,
+    pub overhangs: Overhangs,
     /// Surfels [`crate::front_fill`] added (0 when it is off or not applied).
     pub front_fill_added: usize,
     /// The pose refinement the run used (fixed for a narrow baseline, whatever was asked for).
@@ -515,16 +520,21 @@ fn shift_m(a: &trand_core::Camera, b: &trand_core::Camera, p: glam::DVec3) -> f6
     }
 }
 
-/// Removes the surfels inside any opening, with their optimiser state.
-fn carve(trainer: &mut Trainer<'_>, openings: &[Opening]) {
+/// Removes the surfels inside any opening (and, with [`Overhangs::Carved`], those whose disc
+/// overhangs its lip), with their optimiser state.
+fn carve(trainer: &mut Trainer<'_>, openings: &[Opening], overhangs: Overhangs) {
     if openings.is_empty() {
         return;
     }
-    let keep: Vec<bool> = trainer
-        .surfels
-        .means
-        .iter()
-        .map(|&p| !openings.iter().any(|o| o.carves(p)))
+    let s = &trainer.surfels;
+    let keep: Vec<bool> = (0..s.len())
+        .map(|i| {
+            !openings.iter().any(|o| {
+                o.carves(s.means[i])
+                    || overhangs == Overhangs::Carved
+                        && o.overhangs(s.means[i], s.log_scales[i], s.quats[i])
+            })
+        })
         .collect();
     if keep.iter().all(|&k| k) {
         return;
@@ -851,6 +861,16 @@ pub fn reconstruct_from(
         identity,
     } = train_views(seq, opts)?;
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
+    let mask_agreement = match opts.openings {
+        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => {
+            Some(crate::mask_agreement::measure(&views, &hull_box(&views)?))
+        }
+        _ => None,
+    };
+    let overhangs = match &mask_agreement {
+        Some(m) if m.disagree() => Overhangs::Carved,
+        _ => Overhangs::Kept,
+    };
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {
         cfg.object_loss.active = Activation::Never;
@@ -917,7 +937,7 @@ pub fn reconstruct_from(
             curve = c;
             initial = init;
         }
-        None => carve(&mut trainer, &openings),
+        None => carve(&mut trainer, &openings, overhangs),
     }
     for it in first..=last {
         let rep = trainer.step(it, it == last)?;
@@ -931,7 +951,7 @@ pub fn reconstruct_from(
                     openings_retaken = true;
                 }
             }
-            carve(&mut trainer, &openings);
+            carve(&mut trainer, &openings, overhangs);
         }
         curve.push((it, rep.loss));
         let (rng, stack) = trainer.sampler();
@@ -991,6 +1011,8 @@ pub fn reconstruct_from(
         identity,
         support_applied,
         openings_retaken,
+        mask_agreement,
+        overhangs,
         front_fill_added,
         pose_refinement,
         poses,

@@ -394,6 +394,71 @@ fn a_flared_lip_keeps_a_wall_as_wide_across_as_its_slope_makes_it() {
     );
 }
 
+/// A surfel's quaternion (w, x, y, z) turning the disc's normal from +z to `n` (unit), about the
+/// axis `z × n`.
+fn facing(n: DVec3) -> [f32; 4] {
+    let q = glam::DQuat::from_rotation_arc(DVec3::Z, n);
+    [q.w as f32, q.x as f32, q.y as f32, q.z as f32]
+}
+
+#[test]
+fn a_flat_disc_reaching_over_the_opening_from_the_lip_overhangs_and_a_wall_s_disc_does_not() {
+    let openings = openings_of(&[tumbler([0.0, 0.0])]);
+    let o = &openings[0];
+    // A surfel centre in the lip's kept wall, 1 mm outside the carving, off the centre line along +x.
+    let at = |z: f64| {
+        let k = o.profile.slice_of(z).unwrap();
+        let c = o.carving.centre(k);
+        let r = o.carving.slice_radius[k] - o.carving.lip_margin(k) + 0.001;
+        [(c.x + r) as f32, c.y as f32, z as f32]
+    };
+    let lip = at(o.rim_z - 0.003);
+    assert!(!o.carves(lip), "the centre itself is kept");
+    let sigma = |m: f64| [(m as f32).ln(); 2];
+    assert!(
+        o.overhangs(lip, sigma(0.003), facing(DVec3::Z)),
+        "a flat 3 mm disc reaches 6 mm in"
+    );
+    assert!(
+        !o.overhangs(lip, sigma(0.0003), facing(DVec3::Z)),
+        "a flat 0.3 mm disc stays in the wall"
+    );
+    assert!(
+        !o.overhangs(lip, sigma(0.003), facing(DVec3::X)),
+        "a disc tangent to the wall reaches along it, not in"
+    );
+    let body = at(0.045);
+    assert!(
+        !o.overhangs(body, sigma(0.003), facing(DVec3::Z)),
+        "under the lip band only the centre is tested"
+    );
+}
+
+#[test]
+fn exact_masks_agree_and_masks_two_pixels_too_wide_in_half_the_views_do_not() {
+    use trand_pipeline::mask_agreement::{DISAGREE_SHARE, measure};
+    // Exact: ~3 % (pixel centres half a pixel off the silhouette); three views 2 px too wide: ~23 %.
+    use trand_train::init::SlabBox;
+    let b = SlabBox {
+        min: [-0.2, -0.2, 0.0],
+        max: [0.2, 0.2, 0.2],
+    };
+    let mut views = views(&[tumbler([0.0, 0.0]), bowl([0.09, 0.02])]);
+    let exact = measure(&views, &b);
+    assert!(exact.edge_pixels > 1000, "{}", exact.edge_pixels);
+    assert!(!exact.disagree(), "exact masks miss {}", exact.missed);
+    for v in views.iter_mut().step_by(2) {
+        v.given_ids = trand_pipeline::targets::grow_objects(&v.given_ids, v.width, v.height, 2);
+    }
+    let wide = measure(&views, &b);
+    assert!(
+        wide.disagree() && wide.missed > 4.0 * exact.missed.max(DISAGREE_SHARE / 4.0),
+        "dilated masks miss {} (exact {})",
+        wide.missed,
+        exact.missed
+    );
+}
+
 #[test]
 fn a_stacked_vessel_is_carved_above_its_support_not_into_it() {
     // An upturned tumbler (top at 9 cm) carrying an upright one: the upper one's hull reaches down

@@ -134,6 +134,7 @@ impl Scene {
             "scene_scale": scale_json(&scale),
             "object_channels": rec.channels,
             "vessel_tops": rec.vessel_tops,
+            "mask_agreement": { "measured": rec.mask_agreement, "overhangs": rec.overhangs },
             "identity": rec.identity,
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
             "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },

@@ -335,6 +335,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .detail("train_views", &rec.train_views)
         .detail("depth_views", depth_at)
         .detail("vessel_tops", &rec.vessel_tops)
+        .detail(
+            "mask_agreement",
+            serde_json::json!({ "measured": rec.mask_agreement, "overhangs": rec.overhangs }),
+        )
         .detail("identity", &rec.identity)
         .detail(
             "front_fill",
