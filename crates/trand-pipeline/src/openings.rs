@@ -49,8 +49,6 @@ use crate::targets::TrainView;
 pub mod narrow;
 pub mod overhang;
 
-pub use overhang::Overhangs;
-
 /// Where the training views look from, which decides how a hull is read (see [`Profile::seen_from`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Baseline {
