@@ -863,9 +863,9 @@ pub fn reconstruct_from(
     } = train_views(seq, opts)?;
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
     let mask_agreement = match opts.openings {
-        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => {
-            Some(crate::mask_agreement::measure(&views, &hull_box(&views)?))
-        }
+        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => Some(
+            crate::mask_agreement::measure(&views, &openings_box(&views)?),
+        ),
         _ => None,
     };
     let overhangs = match &mask_agreement {

@@ -437,7 +437,8 @@ fn a_flat_disc_reaching_over_the_opening_from_the_lip_overhangs_and_a_wall_s_dis
 #[test]
 fn exact_masks_agree_and_masks_two_pixels_too_wide_in_half_the_views_do_not() {
     use trand_pipeline::mask_agreement::{DISAGREE_SHARE, measure};
-    // Exact: ~3 % (pixel centres half a pixel off the silhouette); three views 2 px too wide: ~23 %.
+    // Exact: ~3 % at 320 × 240 (pixel centres half a pixel off the silhouette); three views 2 px too
+    // wide: ~23 %.
     use trand_train::init::SlabBox;
     let b = SlabBox {
         min: [-0.2, -0.2, 0.0],
