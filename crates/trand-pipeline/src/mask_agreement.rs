@@ -24,9 +24,9 @@ use crate::targets::TrainView;
 /// through a 2 cm wide object is several millimetres, so a millimetre step does not miss it.
 const STEP_M: f64 = 0.001;
 /// Share of edge rays missing the other views' hull above which the masks disagree. Exact masks of
-/// the four public Blender sequences and ten synthetic scenes miss on 0.7–2.5 % (a mask's pixel grid
-/// is half a pixel off the silhouette); with one object's mask missing from one view, 2–5 %; with
-/// boundaries 1–3 px off or poses half a degree off, a quarter or more (BENCHMARKS.md §8).
+/// the four public Blender sequences and twelve synthetic scenes miss on 0.7–2.5 % (a mask's pixel
+/// grid is half a pixel off the silhouette); with one object's mask missing from one view, 2–5 %;
+/// with boundaries 1–3 px off or poses half a degree off, a quarter or more (BENCHMARKS.md §8).
 pub const DISAGREE_SHARE: f64 = 0.10;
 
 /// The masks' agreement, as `run.json` reports it.
