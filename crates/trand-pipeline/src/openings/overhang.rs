@@ -2,9 +2,9 @@
 //!
 //! The carving ([`Opening::carves`]) tests a surfel's centre. With masks a few pixels off, the rim of
 //! an open vessel gathers flat surfels whose centres sit in the kept wall but whose discs reach
-//! millimetres over the opening: a view whose mask is too wide at the far rim asks for object a few
-//! pixels above it, and a flat disc on the rim that reaches out that far reaches as far in. Seen over
-//! the near rim from another view it is a shelf in front of the inside (seq_101's tumbler with
+//! millimetres over the opening (likely because a view whose mask is too wide at the far rim asks for
+//! object a few pixels above it, and a flat disc on the rim that reaches out that far reaches as far
+//! in). Seen over the near rim from another view it is a shelf in front of the inside (seq_101's tumbler with
 //! boundary errors: six times as many surfels in the top 4 mm under its rim, too-near pixels inside its
 //! outline 1.4 → 5.2 %). So, when the masks disagree ([`crate::mask_agreement`]), a surfel in the
 //! lip band whose disc reaches, at [`OVERHANG_SIGMA`] σ horizontally towards the axis, into the
