@@ -4,14 +4,14 @@
 //! With exact masks and poses the visual hull of the other views contains the object, so the ray
 //! through any object pixel of one view, even at the mask's edge, passes through it. A segmenter's
 //! boundary a few pixels too wide, or a camera a fraction of a degree off, leaves edge pixels whose
-//! rays pass beside that hull; a mask too tight does the same to the other views' edges. The share of
-//! such edge pixels tells inputs a segmenter gave from exact ones without any ground truth, and
+//! rays pass beside that hull; a mask too tight does the same to the other views' edges. The share
+//! of such edge pixels tells inputs a segmenter gave from exact ones without any ground truth, and
 //! decides the priors that only pay with imperfect masks (see [`crate::openings::overhang`]).
 //!
 //! Each view's edge pixels (object pixels, as given, with a background 4-neighbour) are tested: the
 //! ray through the pixel's centre is marched through the hull's box in steps of [`STEP_M`], a step
-//! inside when every other view that sees the point shows an object there and at least two do (a few
-//! hundredths of a second for six 640 × 480 views).
+//! inside when every other view that sees the point shows an object there and at least two do (a
+//! few hundredths of a second for six 640 × 480 views).
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -46,8 +46,9 @@ impl MaskAgreement {
     }
 }
 
-/// The agreement of `views`' masks (as given) inside box `b`, which must hold every object whole (the
-/// rays of the edges of an object the box cuts off miss it: take [`crate::reconstruct::openings_box`]).
+/// The agreement of `views`' masks (as given) inside box `b`, which must hold every object whole
+/// (the rays of the edges of an object the box cuts off miss it: take
+/// [`crate::reconstruct::openings_box`]).
 pub fn measure(views: &[TrainView], b: &SlabBox) -> MaskAgreement {
     let per_view: Vec<(usize, usize)> = (0..views.len())
         .map(|i| {

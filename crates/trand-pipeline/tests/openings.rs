@@ -405,7 +405,7 @@ fn facing(n: DVec3) -> [f32; 4] {
 fn a_flat_disc_reaching_over_the_opening_from_the_lip_overhangs_and_a_wall_s_disc_does_not() {
     let openings = openings_of(&[tumbler([0.0, 0.0])]);
     let o = &openings[0];
-    // A surfel centre in the lip's kept wall, 1 mm outside the carving, off the centre line along +x.
+    // A surfel centre in the lip's kept wall, 1 mm outside the carving, +x of the centre line.
     let at = |z: f64| {
         let k = o.profile.slice_of(z).unwrap();
         let c = o.carving.centre(k);
@@ -437,9 +437,9 @@ fn a_flat_disc_reaching_over_the_opening_from_the_lip_overhangs_and_a_wall_s_dis
 #[test]
 fn exact_masks_agree_and_masks_two_pixels_too_wide_in_half_the_views_do_not() {
     use trand_pipeline::mask_agreement::{DISAGREE_SHARE, measure};
-    // Exact: ~3 % at 320 × 240 (pixel centres half a pixel off the silhouette); three views 2 px too
-    // wide: ~23 %.
     use trand_train::init::SlabBox;
+    // Exact: ~3 % at 320 × 240 (pixel centres half a pixel off the silhouette); three views 2 px
+    // too wide: ~23 %.
     let b = SlabBox {
         min: [-0.2, -0.2, 0.0],
         max: [0.2, 0.2, 0.2],

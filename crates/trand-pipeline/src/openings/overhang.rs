@@ -1,14 +1,14 @@
 //! Surfels whose disc overhangs an opening's lip: the shelf a segmenter's boundary errors grow.
 //!
-//! The carving ([`Opening::carves`]) tests a surfel's centre. With masks a few pixels off, the rim of
-//! an open vessel gathers flat surfels whose centres sit in the kept wall but whose discs reach
-//! millimetres over the opening (likely because a view whose mask is too wide at the far rim asks for
-//! object a few pixels above it, and a flat disc on the rim that reaches out that far reaches as far
-//! in). Seen over the near rim from another view it is a shelf in front of the inside (seq_101's tumbler with
-//! boundary errors: six times as many surfels in the top 4 mm under its rim, too-near pixels inside its
-//! outline 1.4 → 5.2 %). So, when the masks disagree ([`crate::mask_agreement`]), a surfel in the
-//! lip band whose disc reaches, at [`OVERHANG_SIGMA`] σ horizontally towards the axis, into the
-//! carving is carved too ([`Overhangs::Carved`]).
+//! The carving ([`Opening::carves`]) tests a surfel's centre. With masks a few pixels off, the rim
+//! of an open vessel gathers flat surfels whose centres sit in the kept wall but whose discs reach
+//! millimetres over the opening (likely because a view whose mask is too wide at the far rim asks
+//! for object a few pixels above it, and a flat disc on the rim that reaches out that far reaches
+//! as far in). Seen over the near rim from another view it is a shelf in front of the inside
+//! (seq_101's tumbler with boundary errors: six times as many surfels in the top 4 mm under its
+//! rim, too-near pixels inside its outline 1.4 → 5.2 %). So, when the masks disagree
+//! ([`crate::mask_agreement`]), a surfel in the lip band whose disc reaches, at [`OVERHANG_SIGMA`]
+//! σ horizontally towards the axis, into the carving is carved too ([`Overhangs::Carved`]).
 //!
 //! With exact masks the rule is off: a thin rim is made of the same kind of surfels (the stemmed
 //! glasses of the containers scenes lose up to 3.7 points when it is on), and there is no shelf to
