@@ -113,20 +113,12 @@ fn ray_meets_others(views: &[TrainView], i: usize, p: usize, b: &SlabBox) -> boo
 
 /// Whether every view but `i` that sees `q` shows an object there, and at least two do.
 fn inside_others(views: &[TrainView], i: usize, q: DVec3) -> bool {
-    let mut seen = 0;
-    for (j, w) in views.iter().enumerate() {
-        if j == i {
-            continue;
-        }
-        let Some(px) = w.pixel_of(q) else {
-            continue;
-        };
-        if w.given_ids[px] == 0 {
-            return false;
-        }
-        seen += 1;
-    }
-    seen >= 2
+    let others = views
+        .iter()
+        .enumerate()
+        .filter(|&(j, _)| j != i)
+        .map(|(_, w)| w);
+    crate::targets::in_hull_of(others, q, |w| &w.given_ids)
 }
 
 /// The parameter interval where the ray `o + t d` (t > 0) lies in box `b` (slab test).

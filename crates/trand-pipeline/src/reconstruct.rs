@@ -588,17 +588,7 @@ fn in_visual_hull(views: &[TrainView], support: Option<&Support<'_>>, q: glam::D
     if support.is_some_and(|s| !s.holds(q)) {
         return false;
     }
-    let mut seen = 0;
-    for v in views {
-        let Some(o) = v.pixel_of(q) else {
-            continue;
-        };
-        if v.ids[o] == 0 {
-            return false;
-        }
-        seen += 1;
-    }
-    seen >= 2
+    targets::in_hull_of(views, q, |v| &v.ids)
 }
 
 /// The surfels [`front_fill::fill`] adds to `surfels` trained from `views` with `poses`: the views at

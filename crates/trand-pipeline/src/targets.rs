@@ -59,6 +59,26 @@ impl TrainView {
     }
 }
 
+/// The visual-hull test: whether `q` projects onto an object pixel of `ids(v)` in every view `v` of
+/// `views` that sees it, and at least two do.
+pub fn in_hull_of<'a>(
+    views: impl IntoIterator<Item = &'a TrainView>,
+    q: glam::DVec3,
+    ids: impl Fn(&'a TrainView) -> &'a [u16],
+) -> bool {
+    let mut seen = 0;
+    for v in views {
+        let Some(px) = v.pixel_of(q) else {
+            continue;
+        };
+        if ids(v)[px] == 0 {
+            return false;
+        }
+        seen += 1;
+    }
+    seen >= 2
+}
+
 /// Index of the pixel (row-major, rounded to the nearest centre) of a `w × h` image that `p`
 /// projects to through `camera`: `None` behind the camera or outside the image.
 pub fn pixel_index(camera: &Camera, (w, h): (usize, usize), p: glam::DVec3) -> Option<usize> {
