@@ -337,6 +337,7 @@ mod tests {
             width: w,
             height: h,
             rgb: vec![0.5; w * h * 3],
+            grey: vec![0.5; w * h],
             mask: vec![],
             labels: vec![1; w * h],
             label_counts: vec![],

@@ -27,6 +27,7 @@ use crate::mask_agreement::MaskAgreement;
 use crate::openings::overhang::Overhangs;
 use crate::openings::{Baseline, Opening, Top, VesselTop};
 use crate::support::{Support, SupportPrior};
+use crate::table_height::{self, MIN_TABLE_SHIFT_M, TableLevel};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
 use crate::{PipelineError, Result};
@@ -204,6 +205,9 @@ pub struct Reconstruction {
     pub pose_refinement: trand_train::PoseRefinement,
     /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
     pub poses: trand_train::PoseCorrections,
+    /// The table's height seen through the refined cameras after training, and how far the frame was
+    /// moved for it (`None` when the poses were fixed).
+    pub table: Option<TableLevel>,
 }
 
 impl Reconstruction {
@@ -967,7 +971,7 @@ pub fn reconstruct_from(
             break;
         }
     }
-    let poses = trainer.poses;
+    let mut poses = trainer.poses;
     let pose_refinement = trainer.cfg.pose;
     let mut surfels = trainer.surfels;
     let mut front_fill_added = 0;
@@ -983,6 +987,8 @@ pub fn reconstruct_from(
         front_fill_added = added.len();
         surfels.append(&added);
     }
+    let table = (pose_refinement != trand_train::PoseRefinement::Fixed)
+        .then(|| level_table(&mut surfels, &mut poses, &views));
     let optimise_s = t1.elapsed().as_secs_f64();
     let num_trained = surfels.len();
     if opts.method.supervision() == Supervision::ObjectAware {
@@ -1007,7 +1013,40 @@ pub fn reconstruct_from(
         front_fill_added,
         pose_refinement,
         poses,
+        table,
     })
+}
+
+/// After training with refined poses: the table's height seen through the corrected cameras
+/// ([`table_height`]) and, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
+/// frame moved to put it there (cameras and surfels together, so no training image changes). Done
+/// once at the end, so that what training decided (the opening prior above all, whose voxel grid
+/// is fixed to the world) is decided as without it, and a resumed run does alike.
+fn level_table(
+    surfels: &mut Surfels,
+    poses: &mut trand_train::PoseCorrections,
+    views: &[TrainView],
+) -> TableLevel {
+    let cameras: Vec<trand_core::Camera> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| poses.camera(i, &v.camera))
+        .collect();
+    let fit = table_height::measure(views, &cameras);
+    let shift = match fit {
+        Some(f) if f.textured() && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.height_m,
+        _ => 0.0,
+    };
+    if shift != 0.0 {
+        poses.shift_world([0.0, 0.0, shift]);
+        for m in &mut surfels.means {
+            m[2] -= shift as f32;
+        }
+    }
+    TableLevel {
+        fit,
+        shifted_m: shift,
+    }
 }
 
 #[cfg(test)]

@@ -32,6 +32,10 @@ pub struct TrainView {
     pub width: usize,
     pub height: usize,
     pub rgb: Vec<f32>,
+    /// The image in grey (mean of R, G, B in [0, 1]), background included: `rgb` holds the
+    /// background colour outside the objects with object supervision, and the table's height is read
+    /// from the table ([`crate::table_height`]).
+    pub grey: Vec<f32>,
     /// Empty for [`Supervision::FullImage`].
     pub mask: Vec<f32>,
     /// Object channel per pixel (the one-hot target's hot channel, 0 = background); empty for
@@ -288,6 +292,10 @@ pub fn build(
         }
     }
     let given_ids = ids;
+    let grey = rgb
+        .chunks_exact(3)
+        .map(|p| (p[0] + p[1] + p[2]) / 3.0)
+        .collect();
     let grow = match supervision {
         Supervision::ObjectAware => (edges.grow_px.max(0.0) / f as f64).floor() as usize,
         Supervision::FullImage => 0,
@@ -308,6 +316,7 @@ pub fn build(
             width: w,
             height: h,
             rgb,
+            grey,
             mask: Vec::new(),
             labels: Vec::new(),
             label_counts: Vec::new(),
@@ -346,6 +355,7 @@ pub fn build(
         width: w,
         height: h,
         rgb,
+        grey,
         mask,
         labels,
         label_counts,

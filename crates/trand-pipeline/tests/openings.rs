@@ -125,6 +125,7 @@ fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
             width: 320,
             height: 240,
             rgb: Vec::new(),
+            grey: Vec::new(),
             mask: Vec::new(),
             labels: Vec::new(),
             label_counts: Vec::new(),

@@ -136,6 +136,7 @@ impl Scene {
             "vessel_tops": rec.vessel_tops,
             "mask_agreement": { "measured": rec.mask_agreement, "overhangs": rec.overhangs },
             "identity": rec.identity,
+            "table_height": rec.table,
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
             "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },
             "timings": {

@@ -18,7 +18,10 @@
 //! **Gauge.** Moving the whole scene and every camera together changes no image, so only the views'
 //! corrections relative to each other are observable. After each step the mean correction over the
 //! views is subtracted: the cameras keep their average pose, which is the best estimate when the
-//! errors are independent per view (a bias shared by every view cannot be seen in the images).
+//! errors are independent per view (a bias shared by every view cannot be seen in the images). A
+//! height the table's texture shows (`trand_pipeline::table_height`) is the one part of that bias
+//! that can be measured: once training ends, [`PoseCorrections::shift_world`] moves the whole frame
+//! by it (and would hold the mean correction there if training went on).
 //!
 //! Each view has its own Adam moments and step count (a view is stepped only in the iterations that
 //! render it); the learning rates decay log-linearly to `final_ratio` over the run.
@@ -98,6 +101,10 @@ pub struct PoseCorrections {
     /// `xi` as it was when the corrections were taken as settled ([`PoseRefinement::settled`]): the
     /// cameras the run's one-off decisions were retaken with, kept so a resumed run retakes them alike.
     pub settled: Option<Vec<[f64; 6]>>,
+    /// The world translation every correction carries on top of the zero-mean gauge (m): what
+    /// [`PoseCorrections::shift_world`] added.
+    #[serde(default)]
+    pub world_shift: [f64; 3],
     m: Vec<[f64; 6]>,
     v: Vec<[f64; 6]>,
     steps: Vec<u64>,
@@ -113,6 +120,7 @@ impl PoseCorrections {
         Self {
             xi: vec![[0.0; 6]; n],
             settled: None,
+            world_shift: [0.0; 3],
             m: vec![[0.0; 6]; n],
             v: vec![[0.0; 6]; n],
             steps: vec![0; n],
@@ -133,7 +141,8 @@ impl PoseCorrections {
         {
             return Err(format!("settled pose corrections do not fit {n} views"));
         }
-        if !(finite(&self.xi) && finite(&self.m) && finite(&self.v)) {
+        let shift = self.world_shift.iter().all(|v| v.is_finite());
+        if !(finite(&self.xi) && finite(&self.m) && finite(&self.v) && shift) {
             return Err("pose corrections are not finite".into());
         }
         Ok(())
@@ -190,7 +199,20 @@ impl PoseCorrections {
         self.remove_gauge();
     }
 
-    /// Subtracts the mean correction from every view (module docs: gauge).
+    /// Moves the world frame by `d` (m) under every camera, settled ones included: a world point `x`
+    /// is then seen where `x + d` was, since `exp([ω]×)(x + d) + δ ≈ exp([ω]×) x + (δ + d)` to first
+    /// order (corrections stay below a degree, `d` at a centimetre). The surfels must move by `−d`.
+    pub fn shift_world(&mut self, d: [f64; 3]) {
+        let shift = |x: &mut [f64; 6]| (0..3).for_each(|a| x[3 + a] += d[a]);
+        self.xi.iter_mut().for_each(shift);
+        if let Some(s) = self.settled.as_mut() {
+            s.iter_mut().for_each(shift);
+        }
+        (0..3).for_each(|a| self.world_shift[a] += d[a]);
+    }
+
+    /// Sets the mean correction of the views to zero rotation and [`PoseCorrections::world_shift`]
+    /// (module docs: gauge).
     fn remove_gauge(&mut self) {
         let n = self.xi.len() as f64;
         let mut mean = [0.0; 6];
@@ -198,6 +220,9 @@ impl PoseCorrections {
             for a in 0..6 {
                 mean[a] += x[a] / n;
             }
+        }
+        for a in 0..3 {
+            mean[3 + a] -= self.world_shift[a];
         }
         for x in &mut self.xi {
             for a in 0..6 {
@@ -343,6 +368,31 @@ mod tests {
         }
         assert!(mean.iter().all(|m| m.abs() < 1e-15), "{mean:?}");
         assert!(pc.xi[1] != [0.0; 6] && pc.xi[0] != [0.0; 6]);
+    }
+
+    #[test]
+    fn a_shifted_world_is_seen_where_the_shifted_point_was_and_the_gauge_keeps_the_shift() {
+        let c = cam();
+        let mut pc = PoseCorrections::new(3);
+        pc.step(1, &c, [1.0, -2.0, 0.5, 0.3, 0.0, -1.0], (1e-3, 1e-3));
+        pc.settle();
+        let before = pc.camera(1, &c);
+        let d = DVec3::new(0.0, 0.0, -0.004);
+        pc.shift_world(d.to_array());
+        let after = pc.camera(1, &c);
+        let settled = pc.settled_camera(1, &c).expect("settled");
+        let x = DVec3::new(0.03, -0.02, 0.05);
+        let (u, v, _) = after.project(x).expect("in front");
+        let (u0, v0, _) = before.project(x + d).expect("in front");
+        // Exact up to |ω|·|d| (1.7 mrad × 4 mm = 7 µm at the point): under 0.01 px here.
+        assert!((u - u0).abs() < 1e-2 && (v - v0).abs() < 1e-2, "{u} {v} / {u0} {v0}");
+        assert_eq!(settled, after);
+        pc.step(2, &c, [0.2, 0.1, -0.7, 0.0, 2.0, 0.4], (1e-3, 1e-3));
+        for a in 0..6 {
+            let mean: f64 = pc.xi.iter().map(|x| x[a]).sum::<f64>() / 3.0;
+            let want = if a < 3 { 0.0 } else { d[a - 3] };
+            assert!((mean - want).abs() < 1e-15, "component {a}: {mean}");
+        }
     }
 
     #[test]

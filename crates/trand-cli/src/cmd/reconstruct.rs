@@ -287,6 +287,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sh_degree: Some(opts.train.sh_degree),
         ..Default::default()
     };
+    if let Some(t) = rec.table.filter(|t| t.shifted_m != 0.0) {
+        eprintln!(
+            "note: the refined cameras see the table {:.1} mm {} z = 0 (its texture); the scene was moved onto it",
+            t.shifted_m.abs() * 1e3,
+            if t.shifted_m > 0.0 { "above" } else { "below" }
+        );
+    }
     // Without test views, the depth is rendered at the training views (named by their frames).
     let trained: Vec<trand_io::View> = seq
         .train_t0
@@ -340,6 +347,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             serde_json::json!({ "measured": rec.mask_agreement, "overhangs": rec.overhangs }),
         )
         .detail("identity", &rec.identity)
+        .detail("table_height", rec.table)
         .detail(
             "front_fill",
             serde_json::json!({ "mode": opts.front_fill, "surfels_added": rec.front_fill_added }),

@@ -1,0 +1,375 @@
+//! Where the table lies, from its texture: the height of the support plane in the frame of the
+//! training cameras, found by a plane sweep.
+//!
+//! **Why.** Pose refinement (`trand_train::pose`) makes the training views agree with one another,
+//! but a motion of the whole scene with every camera changes no image, so the scene keeps the
+//! mean of the given poses' errors. Six views half a degree and 3 mm off each leave that mean at
+//! 1–5 mm at the objects, depending on the draw, and the exact cameras the depth is wanted at see
+//! the scene that far off: 4.7 mm sideways costs seq_108 3.9 points of depth within 2.5 cm, 3.1 mm
+//! up 2.4 (BENCHMARKS.md §8). Sideways nothing in the images can tell, but the height can: the table
+//! is the plane z = 0 of the world frame (trand's convention), and where it shows texture the views
+//! agree on it only at its true height.
+//!
+//! **Sweep.** For each height `h` of a grid, each view's table pixels (outside every object's mask,
+//! widened by [`MASK_MARGIN_SHARE`] of the image width, over a disc of the table around the
+//! cameras' focus) are cast onto the plane `z = h`, projected into every other view and read there
+//! (bilinear, grey); the score of `h` is the mean over ordered view pairs of the zero-mean
+//! normalised cross-correlation of the two readings. The best grid height is refined by a parabola
+//! through its neighbours. A plain table correlates through its shading alone, whatever `h`, and a
+//! texture finer than the cameras' remaining disagreement can peak at an alias: the fit counts as
+//! textured only when the best score beats the worst by [`MIN_CONTRAST`] and lies inside the grid.
+//! Refraction and caustics are masked with the objects; shadows lie on the table and agree.
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+use trand_core::Camera;
+
+use crate::targets::TrainView;
+
+/// Heights swept (m): the mean of independent per-view errors of a few millimetres stays well
+/// inside; a wider range would let a periodic texture (stripes a few centimetres apart) alias.
+pub const RANGE_M: f64 = 0.010;
+/// Grid step of the sweep (m); the parabola refines within it.
+pub const STEP_M: f64 = 0.0005;
+/// Best minus worst score below which the table's height is not trusted. Plain tables correlate
+/// through their shading alone (0.03–0.05 on seq_101 and seq_109). A texture finer than the refined
+/// cameras' remaining disagreement (wood rings 6–9 mm apart, with perturbed inputs) rises by
+/// 0.06–0.31 and can peak at an alias up to 9 mm off; the checkered, striped and marble tables rise
+/// by 0.46–0.92 and their heights came within 0.1–0.8 mm of the truth (BENCHMARKS.md §8).
+pub const MIN_CONTRAST: f64 = 0.4;
+/// Object masks are widened by this share of the image width (8 px at 640): a mask's edge, a
+/// shadow's core and the refraction at a glass's rim stay out of the table's readings.
+pub const MASK_MARGIN_SHARE: f64 = 1.0 / 80.0;
+/// A height closer than this to z = 0 is left alone. The sweep comes within a few tenths of a
+/// millimetre of the truth, but moves under a millimetre changed the depth scores by ±0.2 points
+/// either way (with exact inputs seq_108's refined cameras see the table 0.57 mm low: moved, −0.2).
+pub const MIN_TABLE_SHIFT_M: f64 = 0.001;
+/// About this many table pixels are sampled per view (a regular grid).
+const SAMPLES_PER_VIEW: f64 = 30_000.0;
+/// View pairs with fewer common table samples than this are left out of the score.
+const MIN_PAIR_SAMPLES: usize = 500;
+
+/// The sweep's result, as `run.json` reports it.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct TableFit {
+    /// Height of the table plane in the cameras' frame (m).
+    pub height_m: f64,
+    /// Mean cross-correlation at the best grid height.
+    pub peak: f64,
+    /// Best minus worst score over the grid.
+    pub contrast: f64,
+    /// Whether the best grid height lies strictly inside the sweep.
+    pub interior: bool,
+}
+
+impl TableFit {
+    /// Whether the height can be trusted: a clear peak inside the sweep.
+    pub fn textured(&self) -> bool {
+        self.interior && self.contrast >= MIN_CONTRAST
+    }
+}
+
+/// What a run did about the table's height, as `run.json` reports it.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct TableLevel {
+    /// The sweep through the refined cameras (`None` when no two views saw the table).
+    pub fit: Option<TableFit>,
+    /// How far the frame was moved up (m): the table's height when the fit was textured and at least
+    /// [`MIN_TABLE_SHIFT_M`] off, else 0.
+    pub shifted_m: f64,
+}
+
+/// One view's sampled table pixels and what the others read them with.
+struct Sampled {
+    centre: DVec3,
+    /// Unit ray and grey value per sample.
+    rays: Vec<(DVec3, f32)>,
+    grey: Vec<f32>,
+    blocked: Vec<bool>,
+    size: (usize, usize),
+    camera: Camera,
+}
+
+/// Sweeps the table's height as seen by `views` through `cameras` (one per view, in order).
+/// `None` when fewer than two views see the table.
+pub fn measure(views: &[TrainView], cameras: &[Camera]) -> Option<TableFit> {
+    let focus = trand_core::camera::focus_point(cameras)?;
+    let radius = 0.5 * cameras.iter().map(|c| c.center().distance(focus)).sum::<f64>()
+        / cameras.len() as f64;
+    let sampled: Vec<Sampled> = views
+        .iter()
+        .zip(cameras)
+        .map(|(v, c)| sample(v, *c))
+        .collect();
+    let steps = (RANGE_M / STEP_M).round() as i64;
+    let heights: Vec<f64> = (-steps..=steps).map(|k| k as f64 * STEP_M).collect();
+    let scores: Vec<Option<f64>> = heights
+        .par_iter()
+        .map(|&h| score(&sampled, h, focus, radius))
+        .collect();
+    let scores: Option<Vec<f64>> = scores.into_iter().collect();
+    let scores = scores?;
+    let (best, &peak) = scores
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
+    let worst = scores.iter().copied().fold(f64::INFINITY, f64::min);
+    let interior = best > 0 && best + 1 < scores.len();
+    let offset = if interior {
+        let (a, b, c) = (scores[best - 1], peak, scores[best + 1]);
+        let den = a - 2.0 * b + c;
+        if den < 0.0 {
+            (0.5 * (a - c) / den).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    } else {
+        0.0
+    };
+    Some(TableFit {
+        height_m: heights[best] + offset * STEP_M,
+        peak,
+        contrast: peak - worst,
+        interior,
+    })
+}
+
+/// `view`'s table samples: a regular pixel grid, outside the widened object masks.
+fn sample(view: &TrainView, camera: Camera) -> Sampled {
+    let (w, h) = (view.width, view.height);
+    let grey = view.grey.clone();
+    let margin = (w as f64 * MASK_MARGIN_SHARE).ceil() as usize;
+    let blocked = widen(&view.given_ids, (w, h), margin);
+    let step = ((w * h) as f64 / SAMPLES_PER_VIEW).sqrt().max(1.0) as usize;
+    let mut rays = Vec::new();
+    for y in (margin..h.saturating_sub(margin)).step_by(step) {
+        for x in (margin..w.saturating_sub(margin)).step_by(step) {
+            let i = y * w + x;
+            if !blocked[i] {
+                rays.push((camera.ray_direction(x as f64, y as f64), grey[i]));
+            }
+        }
+    }
+    Sampled {
+        centre: camera.center(),
+        rays,
+        grey,
+        blocked,
+        size: (w, h),
+        camera,
+    }
+}
+
+/// Object pixels of `ids` grown by `r` pixels (a square window, two separable passes).
+fn widen(ids: &[u16], (w, h): (usize, usize), r: usize) -> Vec<bool> {
+    let mut rows = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            if ids[y * w + x] != 0 {
+                let row = &mut rows[y * w..(y + 1) * w];
+                row[x.saturating_sub(r)..(x + r + 1).min(w)].fill(true);
+            }
+        }
+    }
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            if rows[y * w + x] {
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    out[yy * w + x] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Mean ZNCC over ordered view pairs of the table cast onto `z = height` (module docs), `None` when
+/// no pair shares enough of it.
+fn score(views: &[Sampled], height: f64, focus: DVec3, radius: f64) -> Option<f64> {
+    let mut sum = 0.0;
+    let mut pairs = 0;
+    for (a, va) in views.iter().enumerate() {
+        let points: Vec<(DVec3, f32)> = va
+            .rays
+            .iter()
+            .filter_map(|&(d, g)| {
+                let lambda = (height - va.centre.z) / d.z;
+                let p = va.centre + lambda * d;
+                let near = (p.x - focus.x).hypot(p.y - focus.y) < radius;
+                (lambda > 0.0 && near).then_some((p, g))
+            })
+            .collect();
+        for (b, vb) in views.iter().enumerate() {
+            if a == b {
+                continue;
+            }
+            let mut acc = Zncc::default();
+            for &(p, ga) in &points {
+                if let Some(gb) = read(vb, p) {
+                    acc.add(ga as f64, gb as f64);
+                }
+            }
+            if acc.n >= MIN_PAIR_SAMPLES {
+                sum += acc.value();
+                pairs += 1;
+            }
+        }
+    }
+    (pairs > 0).then(|| sum / pairs as f64)
+}
+
+/// `view`'s grey value at `p`'s image (bilinear, pixel centres at integer coordinates), `None`
+/// outside the image or on a widened object mask.
+fn read(view: &Sampled, p: DVec3) -> Option<f32> {
+    let (x, y, _) = view.camera.project(p)?;
+    let (w, h) = view.size;
+    if x < 0.0 || y < 0.0 || x >= (w - 1) as f64 || y >= (h - 1) as f64 {
+        return None;
+    }
+    let (x0, y0) = (x as usize, y as usize);
+    let near = (y.round() as usize) * w + x.round() as usize;
+    if view.blocked[near] {
+        return None;
+    }
+    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+    let g = |xx: usize, yy: usize| view.grey[yy * w + xx];
+    let top = g(x0, y0) * (1.0 - fx) + g(x0 + 1, y0) * fx;
+    let bottom = g(x0, y0 + 1) * (1.0 - fx) + g(x0 + 1, y0 + 1) * fx;
+    Some(top * (1.0 - fy) + bottom * fy)
+}
+
+/// Running sums of a zero-mean normalised cross-correlation.
+#[derive(Default)]
+struct Zncc {
+    n: usize,
+    a: f64,
+    b: f64,
+    aa: f64,
+    bb: f64,
+    ab: f64,
+}
+
+impl Zncc {
+    fn add(&mut self, a: f64, b: f64) {
+        self.n += 1;
+        self.a += a;
+        self.b += b;
+        self.aa += a * a;
+        self.bb += b * b;
+        self.ab += a * b;
+    }
+
+    fn value(&self) -> f64 {
+        let n = self.n as f64;
+        let cov = self.ab - self.a * self.b / n;
+        let va = self.aa - self.a * self.a / n;
+        let vb = self.bb - self.b * self.b / n;
+        if va <= 0.0 || vb <= 0.0 {
+            return 0.0;
+        }
+        cov / (va * vb).sqrt()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use trand_core::Intrinsics;
+
+    /// Value noise on an 8 mm grid (bilinear between hashed corners): a texture with no period.
+    fn speckle(x: f64, y: f64) -> f32 {
+        let corner = |i: i64, j: i64| {
+            let mut k = (i.wrapping_mul(73_856_093) ^ j.wrapping_mul(19_349_663)) as u64;
+            k ^= k >> 13;
+            k = k.wrapping_mul(0x5bd1_e995);
+            k ^= k >> 15;
+            (k % 1000) as f64 / 1000.0
+        };
+        let (u, v) = (x / 0.008, y / 0.008);
+        let (i, j) = (u.floor() as i64, v.floor() as i64);
+        let (fu, fv) = (u - u.floor(), v - v.floor());
+        let top = corner(i, j) * (1.0 - fu) + corner(i + 1, j) * fu;
+        let bottom = corner(i, j + 1) * (1.0 - fu) + corner(i + 1, j + 1) * fu;
+        (0.2 + 0.6 * (top * (1.0 - fv) + bottom * fv)) as f32
+    }
+
+    /// Six views around a table at `height` painted with `paint`, and a 3 cm object standing on it.
+    fn views_of_table(height: f64, paint: fn(f64, f64) -> f32) -> Vec<TrainView> {
+        let (w, h) = (320, 240);
+        (0..6)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 6.0;
+                let eye = DVec3::new(0.6 * a.cos(), 0.6 * a.sin(), 0.45);
+                let camera = Camera::look_at(
+                    Intrinsics::centered(400.0, w as u32, h as u32),
+                    eye,
+                    DVec3::ZERO,
+                    DVec3::Z,
+                );
+                let mut grey = vec![0.3; w * h];
+                let mut ids = vec![0u16; w * h];
+                for y in 0..h {
+                    for x in 0..w {
+                        let d = camera.ray_direction(x as f64, y as f64);
+                        let p = eye + (height - eye.z) / d.z * d;
+                        if d.z < 0.0 {
+                            grey[y * w + x] = paint(p.x, p.y);
+                            ids[y * w + x] = u16::from(p.truncate().length() < 0.03);
+                        }
+                    }
+                }
+                TrainView {
+                    name: format!("{k}"),
+                    camera,
+                    width: w,
+                    height: h,
+                    rgb: Vec::new(),
+                    grey,
+                    mask: Vec::new(),
+                    labels: Vec::new(),
+                    label_counts: Vec::new(),
+                    ids: ids.clone(),
+                    given_ids: ids,
+                    band: Vec::new(),
+                }
+            })
+            .collect()
+    }
+
+    fn fit(height: f64, paint: fn(f64, f64) -> f32) -> TableFit {
+        let views = views_of_table(height, paint);
+        let cameras: Vec<Camera> = views.iter().map(|v| v.camera).collect();
+        measure(&views, &cameras).expect("the views see the table")
+    }
+
+    #[test]
+    fn a_textured_table_s_height_is_found_within_a_fifth_of_a_millimetre() {
+        for height in [0.0, 0.0032, -0.0047] {
+            let f = fit(height, speckle);
+            assert!(f.textured(), "{f:?}");
+            assert!((f.height_m - height).abs() < 2e-4, "{height}: {f:?}");
+        }
+    }
+
+    #[test]
+    fn a_plain_table_with_smooth_shading_shows_no_height() {
+        let f = fit(0.003, |x, y| (0.5 + 0.4 * x - 0.2 * y) as f32);
+        assert!(!f.textured(), "{f:?}");
+    }
+
+    #[test]
+    fn widening_covers_the_square_around_each_object_pixel_and_nothing_else() {
+        let (w, h) = (7, 5);
+        let mut ids = vec![0u16; w * h];
+        ids[2 * w + 3] = 4;
+        let out = widen(&ids, (w, h), 1);
+        for y in 0..h {
+            for x in 0..w {
+                let near = x.abs_diff(3) <= 1 && y.abs_diff(2) <= 1;
+                assert_eq!(out[y * w + x], near, "({x}, {y})");
+            }
+        }
+    }
+}
