@@ -9,7 +9,9 @@
 //!   `1..=B` pixels (a disc), and two small blobs (radius 1–2 px) are stuck to its edge;
 //! * `miss = M`: M (view, object) pairs of the t = 0 training views lose that object's mask;
 //! * `pose = (deg, mm)`: every training camera is turned by `deg` degrees about a random axis
-//!   through its centre and moved by `mm` millimetres in a random direction.
+//!   through its centre and moved by `mm` millimetres in a random direction;
+//! * `shift_mm = s`: every training camera sees the world moved by `s` (`t' = t + R s`): the part of
+//!   a calibration error all views share, which no image shows (see `trand_train::pose`).
 //!
 //! Random draws come from one PCG stream per view, seeded from the seed and the view's name, so the
 //! copy is the same for a seed whatever the order the views are processed in. The output is BOP
@@ -50,6 +52,8 @@ pub struct Perturbation {
     pub miss: u32,
     /// Rotation (degrees) and translation (millimetres) error per training camera.
     pub pose: Option<(f64, f64)>,
+    /// World shift (millimetres) every training camera sees, after `pose`.
+    pub shift_mm: Option<[f64; 3]>,
 }
 
 /// What was done to one view.
@@ -168,6 +172,15 @@ fn perturb_pose(cam: &Camera, deg: f64, mm: f64, rng: &mut Pcg64) -> Camera {
     Camera::from_glam(cam.intrinsics, r_w2c, -(r_w2c * centre))
 }
 
+/// `cam` seeing the world moved by `s` (m): a point `x` lands where `x + s` did.
+fn shifted(cam: &Camera, s: DVec3) -> Camera {
+    Camera::from_glam(
+        cam.intrinsics,
+        cam.rotation(),
+        cam.translation() + cam.rotation() * s,
+    )
+}
+
 /// Applies `p` to one training view.
 fn perturb_view(view: &mut View, p: &Perturbation, all_ids: &[u16], missed: &[u16]) -> ViewReport {
     let mut rng = view_rng(p.seed, &view.name);
@@ -203,6 +216,9 @@ fn perturb_view(view: &mut View, p: &Perturbation, all_ids: &[u16], missed: &[u1
         view.camera = perturb_pose(&view.camera, deg, mm, &mut rng);
         rep.rotation_deg = deg;
         rep.translation_mm = mm;
+    }
+    if let Some(s) = p.shift_mm {
+        view.camera = shifted(&view.camera, DVec3::from_array(s) / 1000.0);
     }
     rep
 }
@@ -362,7 +378,28 @@ mod tests {
             boundary_px: 3,
             miss: 0,
             pose: Some((0.5, 3.0)),
+            shift_mm: None,
         }
+    }
+
+    #[test]
+    fn a_shifted_camera_sees_each_point_where_the_shifted_point_was() {
+        let mut v = view("v");
+        let before = v.camera;
+        let p = Perturbation {
+            ids: IdMode::Consistent,
+            boundary_px: 0,
+            pose: None,
+            shift_mm: Some([4.0, -1.0, 2.5]),
+            ..all()
+        };
+        perturb_view(&mut v, &p, &[1, 2], &[]);
+        let x = DVec3::new(0.02, 0.01, 0.04);
+        let (u, w, _) = v.camera.project(x).expect("in front");
+        let (u0, w0, _) = before
+            .project(x + DVec3::new(0.004, -0.001, 0.0025))
+            .expect("in front");
+        assert!((u - u0).abs() < 1e-9 && (w - w0).abs() < 1e-9);
     }
 
     #[test]

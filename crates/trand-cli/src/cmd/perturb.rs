@@ -33,6 +33,10 @@ pub struct Args {
     /// moved MM millimetres in a random direction), e.g. 0.5,3.
     #[arg(long, value_parser = parse_pose)]
     pub pose: Option<(f64, f64)>,
+    /// A calibration error every training camera shares: X,Y,Z millimetres (each camera sees the
+    /// world moved by it), e.g. 4,0,0. No image shows it; it measures what such a bias costs.
+    #[arg(long, value_parser = parse_shift, allow_hyphen_values = true)]
+    pub shift: Option<[f64; 3]>,
 }
 
 fn parse_ids(s: &str) -> Result<IdMode, String> {
@@ -57,6 +61,16 @@ fn parse_pose(s: &str) -> Result<(f64, f64), String> {
     Ok((num(d)?, num(m)?))
 }
 
+fn parse_shift(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect::<Option<_>>()
+        .ok_or_else(|| format!("`{s}`: expected X,Y,Z in millimetres, e.g. 4,0,0"))?;
+    v.try_into()
+        .map_err(|_| format!("`{s}`: expected three numbers X,Y,Z"))
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
     if a.out.exists() {
         bail!("{}: output folder already exists", a.out.display());
@@ -73,16 +87,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         boundary_px: a.boundary,
         miss: a.miss,
         pose: a.pose,
+        shift_mm: a.shift,
     };
     let reports = write_perturbed(&seq, &a.out, &p)?;
     let missed: usize = reports.iter().map(|r| r.missed.len()).sum();
     println!(
-        "perturbed {} training views of {} (ids {:?}, boundary {} px, {missed} masks missed, pose {:?}) -> {} (see perturbation.json)",
+        "perturbed {} training views of {} (ids {:?}, boundary {} px, {missed} masks missed, pose {:?}, shift {:?} mm) -> {} (see perturbation.json)",
         reports.len(),
         a.data.display(),
         p.ids,
         p.boundary_px,
         p.pose,
+        p.shift_mm,
         a.out.display()
     );
     Ok(())
