@@ -11,8 +11,8 @@
 //! agree on it only at its true height.
 //!
 //! **Sweep.** For each height `h` of a grid, each view's table pixels (outside every object's mask,
-//! widened by [`MASK_MARGIN_SHARE`] of the image width, over a disc of the table around the
-//! cameras' focus) are cast onto the plane `z = h`, projected into every other view and read there
+//! widened by [`MASK_MARGIN_SHARE`] of the image width, within half the cameras' mean distance of the
+//! cameras' focus on the table) are cast onto the plane `z = h`, projected into every other view and read there
 //! (bilinear, grey); the score of `h` is the mean over ordered view pairs of the zero-mean
 //! normalised cross-correlation of the two readings. The best grid height is refined by a parabola
 //! through its neighbours. A plain table correlates through its shading alone, whatever `h`, and a
@@ -95,8 +95,8 @@ struct Sampled {
 /// `None` when fewer than two views see the table.
 pub fn measure(views: &[TrainView], cameras: &[Camera]) -> Option<TableFit> {
     let focus = trand_core::camera::focus_point(cameras)?;
-    let radius = 0.5 * cameras.iter().map(|c| c.center().distance(focus)).sum::<f64>()
-        / cameras.len() as f64;
+    let distance: f64 = cameras.iter().map(|c| c.center().distance(focus)).sum();
+    let radius = 0.5 * distance / cameras.len() as f64;
     let sampled: Vec<Sampled> = views
         .iter()
         .zip(cameras)

@@ -385,7 +385,10 @@ mod tests {
         let (u, v, _) = after.project(x).expect("in front");
         let (u0, v0, _) = before.project(x + d).expect("in front");
         // Exact up to |ω|·|d| (1.7 mrad × 4 mm = 7 µm at the point): under 0.01 px here.
-        assert!((u - u0).abs() < 1e-2 && (v - v0).abs() < 1e-2, "{u} {v} / {u0} {v0}");
+        assert!(
+            (u - u0).abs() < 1e-2 && (v - v0).abs() < 1e-2,
+            "{u} {v} / {u0} {v0}"
+        );
         assert_eq!(settled, after);
         pc.step(2, &c, [0.2, 0.1, -0.7, 0.0, 2.0, 0.4], (1e-3, 1e-3));
         for a in 0..6 {
