@@ -75,9 +75,10 @@ impl TableFit {
 pub struct TableLevel {
     /// The sweep through the refined cameras (`None` when no two views saw the table).
     pub fit: Option<TableFit>,
-    /// How far the frame was moved down under the scene (m): the table's height when the fit was
-    /// textured and at least [`MIN_TABLE_SHIFT_M`] off, else 0. The surfels moved by minus this; the
-    /// heights `run.json` reports of the training's decisions (`vessel_tops`) are those before.
+    /// The table's height in the frame training used (m) when the fit was textured and at least
+    /// [`MIN_TABLE_SHIFT_M`] off z = 0, else 0: the surfels moved by minus this along z, the cameras
+    /// with them. The heights `run.json` reports of the training's decisions (`vessel_tops`) are
+    /// those before the move.
     pub shifted_m: f64,
 }
 
