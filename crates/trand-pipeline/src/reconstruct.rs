@@ -205,9 +205,9 @@ pub struct Reconstruction {
     pub pose_refinement: trand_train::PoseRefinement,
     /// Each training view's pose correction (zero when the poses were fixed), `train_views` order.
     pub poses: trand_train::PoseCorrections,
-    /// The table's height seen through the refined cameras after training, and how far the frame was
-    /// moved for it (`None` when the poses were fixed).
-    pub table: Option<TableLevel>,
+    /// The table's height seen through the cameras after training, and how far the frame was moved
+    /// for it (never with the poses fixed).
+    pub table: TableLevel,
 }
 
 impl Reconstruction {
@@ -987,8 +987,7 @@ pub fn reconstruct_from(
         front_fill_added = added.len();
         surfels.append(&added);
     }
-    let table = (pose_refinement != trand_train::PoseRefinement::Fixed)
-        .then(|| level_table(&mut surfels, &mut poses, &views));
+    let table = level_table(&mut surfels, &mut poses, &views, pose_refinement);
     let optimise_s = t1.elapsed().as_secs_f64();
     let num_trained = surfels.len();
     if opts.method.supervision() == Supervision::ObjectAware {
@@ -1017,15 +1016,16 @@ pub fn reconstruct_from(
     })
 }
 
-/// After training with refined poses: the table's height seen through the corrected cameras
-/// ([`table_height`]) and, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
-/// frame moved to put it there (cameras and surfels together, so no training image changes). Done
+/// After training: the table's height seen through the (corrected) cameras ([`table_height`]) and,
+/// with refined poses, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
+/// frame moved to put it there (poses kept as given are the user's: measured only) (cameras and surfels together, so no training image changes). Done
 /// once at the end, so that what training decided (the opening prior above all, whose voxel grid
 /// is fixed to the world) is decided as without it, and a resumed run does alike.
 fn level_table(
     surfels: &mut Surfels,
     poses: &mut trand_train::PoseCorrections,
     views: &[TrainView],
+    refinement: trand_train::PoseRefinement,
 ) -> TableLevel {
     let cameras: Vec<trand_core::Camera> = views
         .iter()
@@ -1033,8 +1033,9 @@ fn level_table(
         .map(|(i, v)| poses.camera(i, &v.camera))
         .collect();
     let fit = table_height::measure(views, &cameras);
+    let refined = refinement != trand_train::PoseRefinement::Fixed;
     let shift = match fit {
-        Some(f) if f.textured() && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.height_m,
+        Some(f) if refined && f.textured() && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.height_m,
         _ => 0.0,
     };
     if shift != 0.0 {

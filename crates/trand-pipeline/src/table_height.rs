@@ -45,6 +45,9 @@ pub const MASK_MARGIN_SHARE: f64 = 1.0 / 80.0;
 /// millimetre of the truth, but moves under a millimetre changed the depth scores by ±0.2 points
 /// either way (with exact inputs seq_108's refined cameras see the table 0.57 mm low: moved, −0.2).
 pub const MIN_TABLE_SHIFT_M: f64 = 0.001;
+/// With the poses kept as given, a textured table this far off z = 0 is reported (`trand
+/// reconstruct` warns), not moved.
+pub const WARN_M: f64 = 0.005;
 /// About this many table pixels are sampled per view (a regular grid).
 const SAMPLES_PER_VIEW: f64 = 30_000.0;
 /// View pairs with fewer common table samples than this are left out of the score.

@@ -287,12 +287,23 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         sh_degree: Some(opts.train.sh_degree),
         ..Default::default()
     };
-    if let Some(t) = rec.table.filter(|t| t.shifted_m != 0.0) {
-        eprintln!(
+    let side = |h: f64| if h > 0.0 { "above" } else { "below" };
+    match (rec.table.shifted_m, rec.table.fit) {
+        (h, _) if h != 0.0 => eprintln!(
             "note: the refined cameras see the table {:.1} mm {} z = 0 (its texture); the scene was moved onto it",
-            t.shifted_m.abs() * 1e3,
-            if t.shifted_m > 0.0 { "above" } else { "below" }
-        );
+            h.abs() * 1e3,
+            side(h)
+        ),
+        (_, Some(f))
+            if f.textured() && f.height_m.abs() >= trand_pipeline::table_height::WARN_M =>
+        {
+            eprintln!(
+                "warning: the table's texture puts it {:.1} mm {} z = 0; trand takes the table as the plane z = 0 of the world frame",
+                f.height_m.abs() * 1e3,
+                side(f.height_m)
+            )
+        }
+        _ => {}
     }
     // Without test views, the depth is rendered at the training views (named by their frames).
     let trained: Vec<trand_io::View> = seq
