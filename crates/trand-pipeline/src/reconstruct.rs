@@ -1016,11 +1016,12 @@ pub fn reconstruct_from(
     })
 }
 
-/// After training: the table's height seen through the (corrected) cameras ([`table_height`]) and,
-/// with refined poses, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
-/// frame moved to put it there (poses kept as given are the user's: measured only) (cameras and surfels together, so no training image changes). Done
-/// once at the end, so that what training decided (the opening prior above all, whose voxel grid
-/// is fixed to the world) is decided as without it, and a resumed run does alike.
+/// After training: the table's height seen through the (corrected) cameras ([`table_height`]).
+/// With refined poses, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
+/// frame is moved to put it there: cameras and surfels together, so no training image changes.
+/// Poses kept as given are the user's: measured only. Done once at the end, so that what training
+/// decided (the opening prior above all, whose voxel grid is fixed to the world) is decided as
+/// without it, and a resumed run does alike.
 fn level_table(
     surfels: &mut Surfels,
     poses: &mut trand_train::PoseCorrections,

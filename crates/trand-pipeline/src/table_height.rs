@@ -86,11 +86,10 @@ pub struct TableLevel {
 }
 
 /// One view's sampled table pixels and what the others read them with.
-struct Sampled {
-    centre: DVec3,
+struct Sampled<'a> {
     /// Unit ray and grey value per sample.
     rays: Vec<(DVec3, f32)>,
-    grey: Vec<f32>,
+    grey: &'a [f32],
     blocked: Vec<bool>,
     size: (usize, usize),
     camera: Camera,
@@ -141,9 +140,9 @@ pub fn measure(views: &[TrainView], cameras: &[Camera]) -> Option<TableFit> {
 }
 
 /// `view`'s table samples: a regular pixel grid, outside the widened object masks.
-fn sample(view: &TrainView, camera: Camera) -> Sampled {
+fn sample(view: &TrainView, camera: Camera) -> Sampled<'_> {
     let (w, h) = (view.width, view.height);
-    let grey = view.grey.clone();
+    let grey = &view.grey;
     let margin = (w as f64 * MASK_MARGIN_SHARE).ceil() as usize;
     let blocked = widen(&view.given_ids, (w, h), margin);
     let step = ((w * h) as f64 / SAMPLES_PER_VIEW).sqrt().max(1.0) as usize;
@@ -157,7 +156,6 @@ fn sample(view: &TrainView, camera: Camera) -> Sampled {
         }
     }
     Sampled {
-        centre: camera.center(),
         rays,
         grey,
         blocked,
@@ -196,12 +194,13 @@ fn score(views: &[Sampled], height: f64, focus: DVec3, radius: f64) -> Option<f6
     let mut sum = 0.0;
     let mut pairs = 0;
     for (a, va) in views.iter().enumerate() {
+        let centre = va.camera.center();
         let points: Vec<(DVec3, f32)> = va
             .rays
             .iter()
             .filter_map(|&(d, g)| {
-                let lambda = (height - va.centre.z) / d.z;
-                let p = va.centre + lambda * d;
+                let lambda = (height - centre.z) / d.z;
+                let p = centre + lambda * d;
                 let near = (p.x - focus.x).hypot(p.y - focus.y) < radius;
                 (lambda > 0.0 && near).then_some((p, g))
             })
