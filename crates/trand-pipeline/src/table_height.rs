@@ -5,8 +5,8 @@
 //! but a motion of the whole scene with every camera changes no image, so the scene keeps the
 //! mean of the given poses' errors. Six views half a degree and 3 mm off each leave that mean at
 //! 1–5 mm at the objects, depending on the draw, and the exact cameras the depth is wanted at see
-//! the scene that far off: 4.7 mm sideways costs seq_108 3.9 points of depth within 2.5 cm, 3.1 mm
-//! up 2.4 (BENCHMARKS.md §8). Sideways nothing in the images can tell, but the height can: the table
+//! the scene that far off: 4.6 mm sideways costs seq_108 3.9 points of depth within 2.5 cm, 3 mm
+//! up cost it 2.6 before its height was read (BENCHMARKS.md §8). Sideways nothing in the images can tell, but the height can: the table
 //! is the plane z = 0 of the world frame (trand's convention), and where it shows texture the views
 //! agree on it only at its true height.
 //!

@@ -54,7 +54,7 @@ pub enum PoseRefinement {
 
 impl PoseRefinement {
     /// The default for multi-view training: a view is stepped about 150 times, enough for a degree
-    /// (5e-4 beat 2e-4 on exact and on perturbed poses of the Blender sequences, BENCHMARKS §8).
+    /// (5e-4 beat 2e-4 on exact and on perturbed poses of the Blender sequences, BENCHMARKS §10).
     pub fn refine() -> Self {
         PoseRefinement::Refine {
             from_iteration: 100,
