@@ -21,7 +21,10 @@
 //! errors are independent per view (a bias shared by every view cannot be seen in the images). A
 //! height the table's texture shows (`trand_pipeline::table_height`) is the one part of that bias
 //! that can be measured: once training ends, [`PoseCorrections::shift_world`] moves the whole frame
-//! by it (and would hold the mean correction there if training went on).
+//! by it (and would hold the mean correction there if training went on). A scaling of every camera
+//! centre is nearly a gauge too (the scene scaled with its cameras looks alike): the cameras drift
+//! along their rays, which the mean turns into a vertical shift of the frame, yet removing that mode
+//! as well, or holding each camera's distance to the scene, cost depth (BENCHMARKS.md §10).
 //!
 //! Each view has its own Adam moments and step count (a view is stepped only in the iterations that
 //! render it); the learning rates decay log-linearly to `final_ratio` over the run.
