@@ -154,6 +154,16 @@ impl Camera {
         self.rotation().transpose() * DVec3::Z
     }
 
+    /// This camera seeing the world moved by `s` (m): a point `x` projects where `x + s` did
+    /// (`t' = t + R s`, the rotation unchanged).
+    pub fn seeing_world_moved(&self, s: DVec3) -> Self {
+        Self::from_glam(
+            self.intrinsics,
+            self.rotation(),
+            self.translation() + self.rotation() * s,
+        )
+    }
+
     /// World point to camera frame.
     pub fn world_to_camera(&self, p: DVec3) -> DVec3 {
         self.rotation() * p + self.translation()

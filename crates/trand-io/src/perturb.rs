@@ -172,15 +172,6 @@ fn perturb_pose(cam: &Camera, deg: f64, mm: f64, rng: &mut Pcg64) -> Camera {
     Camera::from_glam(cam.intrinsics, r_w2c, -(r_w2c * centre))
 }
 
-/// `cam` seeing the world moved by `s` (m): a point `x` lands where `x + s` did.
-fn shifted(cam: &Camera, s: DVec3) -> Camera {
-    Camera::from_glam(
-        cam.intrinsics,
-        cam.rotation(),
-        cam.translation() + cam.rotation() * s,
-    )
-}
-
 /// Applies `p` to one training view.
 fn perturb_view(view: &mut View, p: &Perturbation, all_ids: &[u16], missed: &[u16]) -> ViewReport {
     let mut rng = view_rng(p.seed, &view.name);
@@ -218,7 +209,9 @@ fn perturb_view(view: &mut View, p: &Perturbation, all_ids: &[u16], missed: &[u1
         rep.translation_mm = mm;
     }
     if let Some(s) = p.shift_mm {
-        view.camera = shifted(&view.camera, DVec3::from_array(s) / 1000.0);
+        view.camera = view
+            .camera
+            .seeing_world_moved(DVec3::from_array(s) / 1000.0);
     }
     rep
 }

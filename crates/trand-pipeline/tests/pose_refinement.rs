@@ -115,12 +115,7 @@ fn shared_bias_run(pose: PoseRefinement) -> (trand_pipeline::table_height::Table
     let dir = trand_io::ScratchDir::new("table-height").expect("scratch");
     let mut seq = common::tiny(5, dir.path());
     for v in &mut seq.train_t0 {
-        let c = v.camera;
-        v.camera = Camera::from_glam(
-            c.intrinsics,
-            c.rotation(),
-            c.translation() + c.rotation() * DVec3::new(0.0, 0.0, 0.004),
-        );
+        v.camera = v.camera.seeing_world_moved(DVec3::new(0.0, 0.0, 0.004));
     }
     let mut opts = ReconstructOptions::default();
     opts.train.iterations = 300;
