@@ -30,8 +30,8 @@
 //! `score = IoU − w_photo · photometric − w_rest · implausibility − w_prior · prior − w_turn · turn
 //!          − w_energy · energy`
 //!
-//! * IoU of the rendered silhouette with the instance mask (other objects' pixels not counted against
-//!   it);
+//! * IoU of the rendered silhouette, its holes filled, with the instance mask (other objects' pixels
+//!   not counted against it);
 //! * photometric: mean absolute difference of the rendered colours and the new image's inside the mask
 //!   (background outside it), over the mask and the silhouette: the refinement's colour loss before
 //!   its first step, which tells apart poses with the same outline (upside down, the wrong end

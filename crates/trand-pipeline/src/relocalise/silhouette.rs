@@ -12,11 +12,11 @@
 //!   the four Blender sequences' t = 1 views these discs agree with the rendered silhouette at IoU
 //!   0.65–0.88 (the rendered one is the fuller); every surfel above 5 % opacity (a trained glass has
 //!   20–30 times as many) agreed less;
-//! * **rendered**: the object's surfels alone, `α > ½`, the measure decisions are taken on. The same
-//!   render gives the photometric error: the mean absolute difference between the rendered colour
-//!   (over the background colour) and the image with every pixel outside the object's mask set to
-//!   the background — the refinement's colour target — over the pixels of the mask or the
-//!   silhouette, other objects' pixels left out. A pose that covers the mask with the wrong colours
+//! * **rendered**: the object's surfels alone, `α > ½`, its holes filled ([`filled`]), the measure
+//!   decisions are taken on. The same render gives the photometric error: the mean absolute
+//!   difference between the rendered colour (over the background colour) and the image with every
+//!   pixel outside the object's mask set to the background — the refinement's colour target — over
+//!   the pixels of the mask or the silhouette (`α > ½`, unfilled), other objects' pixels left out. A pose that covers the mask with the wrong colours
 //!   (upside down, the wrong end towards the camera) pays for them; one that covers only the part of
 //!   the mask its colours happen to match pays for the rest.
 
@@ -217,7 +217,11 @@ impl<'a> Scorer<'a> {
         let out = render::<f32, _>(&placed, &self.target.camera, &self.settings)?;
         let k = self.target.camera.intrinsics;
         let all = [0, 0, k.width as usize - 1, k.height as usize - 1];
-        let iou = self.iou(all, |p| out.alpha[p] > 0.5);
+        let solid = filled(
+            out.alpha.iter().map(|&a| a > 0.5).collect(),
+            k.width as usize,
+        );
+        let iou = self.iou(all, |p| solid[p]);
         let (mut sum, mut n) = (0.0f64, 0usize);
         if !self.target.rgb.is_empty() {
             let bg = self.settings.background;
@@ -297,6 +301,43 @@ impl<'a> Scorer<'a> {
     }
 }
 
+/// `silhouette` (row-major, `width` wide) with its holes filled: every pixel the image's border
+/// cannot reach through pixels outside it (4-connected). An open vessel seen from above shows its
+/// inside, and its mask covers it; a model of it whose floor is missing or was lowered under the
+/// table (an object rests on its body, and surfels under the table are not drawn) renders a ring,
+/// which then fits the mask worse than the vessel lying on its side.
+pub fn filled(mut silhouette: Vec<bool>, width: usize) -> Vec<bool> {
+    let height = silhouette.len() / width.max(1);
+    let mut outside = vec![false; silhouette.len()];
+    let mut stack: Vec<usize> = (0..width)
+        .flat_map(|x| [x, (height - 1) * width + x])
+        .chain((0..height).flat_map(|y| [y * width, y * width + width - 1]))
+        .collect();
+    while let Some(p) = stack.pop() {
+        if silhouette[p] || outside[p] {
+            continue;
+        }
+        outside[p] = true;
+        let (x, y) = (p % width, p / width);
+        if x > 0 {
+            stack.push(p - 1);
+        }
+        if x + 1 < width {
+            stack.push(p + 1);
+        }
+        if y > 0 {
+            stack.push(p - width);
+        }
+        if y + 1 < height {
+            stack.push(p + width);
+        }
+    }
+    for (s, o) in silhouette.iter_mut().zip(&outside) {
+        *s = !o;
+    }
+    silhouette
+}
+
 /// Downsamples an instance map by an integer factor: each block takes its most frequent id.
 pub fn downsample_ids(inst: &InstanceMap, f: u32, width: u32, height: u32) -> Vec<u16> {
     let mut out = vec![0u16; (width * height) as usize];
@@ -347,6 +388,46 @@ fn downsample_rgb(img: &Rgb8Image, f: u32, width: u32, height: u32) -> Vec<[f32;
 mod tests {
     use super::*;
     use crate::test_scene::{camera, cylinder};
+
+    #[test]
+    fn a_ring_is_filled_and_a_notch_open_to_the_border_is_not() {
+        // 5 × 5: a ring around the centre pixel, and a notch from the border into the ring's row 4.
+        let ring: Vec<bool> = (0..25)
+            .map(|p| {
+                let (x, y) = (p % 5, p / 5);
+                (1..=3).contains(&x) && (1..=3).contains(&y) && (x, y) != (2, 2)
+            })
+            .collect();
+        let got = filled(ring.clone(), 5);
+        assert!(got[12], "the centre is a hole");
+        assert_eq!(got.iter().filter(|&&s| s).count(), 9);
+        let mut notched = ring;
+        notched[11] = false; // (1, 2): the hole now reaches the border through (0, 2)
+        assert!(!filled(notched, 5)[12]);
+    }
+
+    #[test]
+    fn an_open_vessel_seen_from_above_covers_its_mask() {
+        // Walls only, as a vessel whose floor sank under the table: from above, a ring.
+        let s = cylinder(0.0, 0.0, 1);
+        let k = trand_core::Intrinsics::centered(300.0, 160, 120);
+        let cam = Camera::look_at(k, DVec3::new(0.0, 0.0, 0.5), DVec3::ZERO, DVec3::Y);
+        // Its mask: the disc inside the rim's image (the inside is seen through the opening).
+        let r_px =
+            300.0 * crate::test_scene::RADIUS as f64 / (0.5 - crate::test_scene::HEIGHT as f64);
+        let ids: Vec<u16> = (0..k.width * k.height)
+            .map(|p| {
+                let (x, y) = ((p % k.width) as f64 - k.cx, (p / k.width) as f64 - k.cy);
+                u16::from(x.hypot(y) <= r_px) * 7
+            })
+            .collect();
+        let inst = InstanceMap::from_vec(k.width, k.height, 1, ids).unwrap();
+        let target = Target::new(&cam, &inst, None, 0.0);
+        let c = DVec3::new(0.0, 0.0, 0.05);
+        let mut sc = Scorer::new(&target, RenderSettings::default(), 7, &s, c).unwrap();
+        let iou = sc.render(&Pose::IDENTITY).unwrap().iou;
+        assert!(iou > 0.9, "IoU {iou}");
+    }
 
     #[test]
     fn a_block_majority_decides_a_downsampled_id() {
