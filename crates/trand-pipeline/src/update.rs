@@ -27,6 +27,7 @@ use trand_io::View;
 use trand_render::{GeometryMaps, Maps, RenderSettings};
 
 pub use crate::detect::{Identity, Match, detect};
+use crate::new_camera::CameraCorrection;
 use crate::relocalise::{NewImage, Object, Relocation, relocalise};
 pub use crate::simulate::{Simulation, simulate, virtual_cameras};
 use crate::surfel_ops::channel_probs;
@@ -45,6 +46,8 @@ pub struct Update {
     /// Which detection rule was used (`Auto` resolved).
     pub identity: Identity,
     pub relocations: Vec<Relocation>,
+    /// The new photo's camera as corrected by the unmoved objects (`None`: not tried).
+    pub camera_correction: Option<CameraCorrection>,
     /// Objects in contact (transitively) with a removed one: the only ones the simulation may move.
     pub movable: Vec<u16>,
     pub mesh: Option<Mesh>,
@@ -169,6 +172,27 @@ pub fn update_with_cancel(
             .collect(),
     };
     let movable = crate::contact::may_move(&centres, &removed);
+    // The new camera, turned to fit the objects the removal cannot have moved.
+    let mut new_view = std::borrow::Cow::Borrowed(new_view);
+    let mut camera_correction = None;
+    if let (true, Stage::On, Some(inst)) = (
+        object_aware,
+        opts.correct_camera,
+        new_view.instance.as_ref(),
+    ) {
+        let unmoved: Vec<(usize, u16)> = channels
+            .iter()
+            .filter(|(id, _)| !removed.contains(id) && !movable.contains(id))
+            .filter_map(|&(id, c)| Some((c, matches.iter().find(|m| m.object_id == id)?.new_id?)))
+            .collect();
+        let (camera, report) =
+            crate::new_camera::correct(&surfels, &unmoved, &new_view.camera, inst, &settings)?;
+        camera_correction = report;
+        if report.is_some_and(|r| r.applied) {
+            new_view.to_mut().camera = camera;
+        }
+    }
+    let new_view: &View = &new_view;
     let relocalising = opts.relocalise == Stage::On && object_aware;
     // The removed objects as they were, for the relocalisation's t = 0 scene.
     let mut removed_surfels: Vec<Surfels> = Vec::new();
@@ -328,6 +352,7 @@ pub fn update_with_cancel(
         deleted_surfels: deleted,
         identity,
         relocations,
+        camera_correction,
         movable,
         mesh,
         num_particles,

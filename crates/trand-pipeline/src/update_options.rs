@@ -60,6 +60,9 @@ pub enum Stage {
 pub struct UpdateOptions {
     pub physics: Stage,
     pub refine: Stage,
+    /// The new photo's camera turned to fit the objects the removal cannot have moved
+    /// ([`crate::new_camera`]).
+    pub correct_camera: Stage,
     /// Silhouette relocalisation after the simulation.
     pub relocalise: Stage,
     pub relocalise_settings: Relocalise,
@@ -192,6 +195,7 @@ impl Default for UpdateOptions {
         Self {
             physics: Stage::On,
             refine: Stage::On,
+            correct_camera: Stage::On,
             relocalise: Stage::On,
             relocalise_settings: Relocalise::default(),
             removed: None,

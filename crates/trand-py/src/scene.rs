@@ -302,6 +302,7 @@ impl Scene {
             "identity": up.identity,
             "identity_from_t0": self.identity_used == Identity::Overlap,
             "relocations": up.relocations,
+            "camera_correction": up.camera_correction,
             "movable": up.movable,
             "deleted_surfels": up.deleted_surfels,
             "num_particles": up.num_particles,

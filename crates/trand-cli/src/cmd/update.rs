@@ -40,6 +40,10 @@ pub struct Args {
     /// mask and colours; off keeps the simulated pose.
     #[arg(long, value_enum)]
     pub relocalise: Option<Stage>,
+    /// The new photo's camera: on (default) turns it to fit the objects the removal cannot have
+    /// moved (a robot's pose error of a fraction of a degree shifts them all alike); off keeps it.
+    #[arg(long, value_enum)]
+    pub correct_camera: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
     #[arg(long, num_args = 1..)]
     pub removed: Option<Vec<u16>>,
@@ -211,6 +215,7 @@ fn update_options(
     opts.physics = a.physics.unwrap_or(opts.physics);
     opts.refine = a.refine.unwrap_or(opts.refine);
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
+    opts.correct_camera = a.correct_camera.unwrap_or(opts.correct_camera);
     opts.identity = a.identity.unwrap_or(opts.identity);
     // A segmenter whose t = 0 ids needed association numbers the new image on its own as well.
     let t0_associated = run_json.identity_used() == Some("overlap");
@@ -294,7 +299,9 @@ fn t1_manifest(
         .detail("identity", up.identity)
         .detail("identity_from_t0", t1.t0_associated)
         .detail("relocalise", opts.relocalise)
+        .detail("correct_camera", opts.correct_camera)
         .detail("relocations", &up.relocations)
+        .detail("camera_correction", &up.camera_correction)
         .detail("movable", &up.movable)
         .detail("deleted_surfels", up.deleted_surfels)
         .detail("num_particles", up.num_particles)
@@ -435,6 +442,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 m.object_id, m.iou
             ),
         }
+    }
+    if let Some(c) = up.camera_correction.filter(|c| c.applied) {
+        println!(
+            "new camera turned {:.2}° to fit {} unmoved object(s): shifted ({:.1}, {:.1}) px, IoU {:.2} -> {:.2}",
+            c.turn_deg, c.objects, c.shift_px[0], c.shift_px[1], c.iou_given, c.iou_shifted
+        );
     }
     for r in &up
         .relocations
