@@ -301,7 +301,7 @@ fn t1_manifest(
         .detail("relocalise", opts.relocalise)
         .detail("correct_camera", opts.correct_camera)
         .detail("relocations", &up.relocations)
-        .detail("camera_correction", &up.camera_correction)
+        .detail("camera_correction", up.camera_correction)
         .detail("movable", &up.movable)
         .detail("deleted_surfels", up.deleted_surfels)
         .detail("num_particles", up.num_particles)
