@@ -21,7 +21,7 @@ use trand_io::InstanceMap;
 use trand_render::{GeometryMaps, Maps, RenderSettings, render};
 
 use crate::Result;
-use crate::surfel_ops::channel_probs;
+use crate::simulate::channel_members;
 
 /// Largest shift searched, native pixels (1° at 600 px focal length is 10.5 px).
 pub const MAX_SHIFT_PX: i32 = 16;
@@ -71,8 +71,10 @@ pub fn correct(
     let (w, h) = (inst.width as i32, inst.height as i32);
     let mut sils = Vec::new();
     for &(channel, id) in unmoved {
-        let p = channel_probs(surfels, channel);
-        let idx: Vec<usize> = (0..p.len()).filter(|&i| p[i] > 0.5).collect();
+        let idx: Vec<usize> = channel_members(surfels, channel)
+            .into_iter()
+            .map(|i| i as usize)
+            .collect();
         let mask_size = inst.data.iter().filter(|&&v| v == id).count();
         if idx.len() < 3 || mask_size < MIN_PIXELS {
             continue;
@@ -174,8 +176,10 @@ mod tests {
         let k = cam.intrinsics;
         let mut ids = vec![0u16; k.num_pixels()];
         for (c, id) in [(0usize, 7u16), (1, 9)] {
-            let p = channel_probs(s, c);
-            let idx: Vec<usize> = (0..p.len()).filter(|&i| p[i] > 0.5).collect();
+            let idx: Vec<usize> = channel_members(s, c)
+                .into_iter()
+                .map(|i| i as usize)
+                .collect();
             let out = render::<f32, _>(&s.gather(&idx), cam, &RenderSettings::default()).unwrap();
             for (v, a) in ids.iter_mut().zip(&out.alpha) {
                 if *a > 0.5 {

@@ -253,12 +253,9 @@ pub fn update_with_cancel(
             .iter()
             .filter_map(|&(id, c)| {
                 let new_id = matches.iter().find(|m| m.object_id == id)?.new_id?;
-                let p = channel_probs(&surfels, c);
                 Some(Object {
                     id,
-                    surfels: (0..surfels.len() as u32)
-                        .filter(|&i| p[i as usize] > 0.5)
-                        .collect(),
+                    surfels: crate::simulate::channel_members(&surfels, c),
                     new_id,
                 })
             })

@@ -16,9 +16,10 @@
 //!   decisions are taken on. The same render gives the photometric error: the mean absolute
 //!   difference between the rendered colour (over the background colour) and the image with every
 //!   pixel outside the object's mask set to the background — the refinement's colour target — over
-//!   the pixels of the mask or the silhouette (`α > ½`, unfilled), other objects' pixels left out. A pose that covers the mask with the wrong colours
-//!   (upside down, the wrong end towards the camera) pays for them; one that covers only the part of
-//!   the mask its colours happen to match pays for the rest.
+//!   the pixels of the mask or the silhouette (`α > ½`, unfilled), other objects' pixels left out. A
+//!   pose that covers the mask with the wrong colours (upside down, the wrong end towards the camera)
+//!   pays for them; one that covers only the part of the mask its colours happen to match pays for
+//!   the rest.
 
 use glam::DVec3;
 use trand_core::{Camera, Surfels};
