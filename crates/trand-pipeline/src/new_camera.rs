@@ -13,7 +13,16 @@
 //! the object may be behind them) is refined by a parabola through its neighbours in x and in y.
 //! A shift of the image is a turn of the camera about its centre by `dx / fx` about its y axis and
 //! `−dy / fy` about its x axis (to first order; a translation error of a few millimetres at half a
-//! metre looks the same). The turn is applied when it raises the mean IoU by at least [`MIN_GAIN`].
+//! metre looks the same). The turn is applied when it raises the mean IoU by at least [`MIN_GAIN`]
+//! and lowers no object's IoU by more than [`MAX_LOSS`].
+//!
+//! **Knocked objects.** A falling object can knock aside one the removal could not have moved. Its
+//! silhouette then fits its mask better shifted, as under a camera error, but alone: the shift that
+//! suits it makes the objects that did stay fit worse, which a camera's error cannot do; hence the
+//! [`MAX_LOSS`] condition. Each object's own best shift is searched too, and an object that fits by
+//! [`DISPLACED_GAIN`] better shifted than at the camera used is reported displaced
+//! ([`CameraCorrection::displaced`]): the relocalisation searches it like the objects the simulation
+//! moved. These fits are computed even when the turn is switched off.
 
 use glam::DMat3;
 use trand_core::{Camera, Surfels};
@@ -22,16 +31,24 @@ use trand_render::{GeometryMaps, Maps, RenderSettings, render};
 
 use crate::Result;
 use crate::simulate::channel_members;
+use crate::update_options::Stage;
 
 /// Largest shift searched, native pixels (1° at 600 px focal length is 10.5 px).
 pub const MAX_SHIFT_PX: i32 = 16;
 /// Mean IoU gain below which the camera is kept as given.
 pub const MIN_GAIN: f64 = 0.02;
+/// The turn is refused when it lowers any one object's IoU by more than this: a camera's error
+/// shifts every unmoved object the same way, so its correction cannot make one of them fit worse.
+pub const MAX_LOSS: f64 = 0.01;
+/// An object whose silhouette, shifted on its own, fits its mask better by this much than at the
+/// camera finally used has moved although the removal could not move it (a falling object knocked
+/// it aside): [`CameraCorrection::displaced`].
+pub const DISPLACED_GAIN: f64 = 0.1;
 /// Objects with fewer silhouette or mask pixels than this are left out.
 const MIN_PIXELS: usize = 50;
 
 /// What the correction found, as `run.json` reports it.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct CameraCorrection {
     /// Unmoved objects compared.
     pub objects: usize,
@@ -44,6 +61,39 @@ pub struct CameraCorrection {
     pub iou_shifted: f64,
     /// Whether the camera was turned ([`MIN_GAIN`]).
     pub applied: bool,
+    /// Each object's fit: as given, at the common shift, and at its own best shift.
+    pub per_object: Vec<ObjectFit>,
+}
+
+impl CameraCorrection {
+    /// The objects that moved although the removal could not move them: shifted alone, their
+    /// silhouette fits its mask by [`DISPLACED_GAIN`] better than at the camera used.
+    pub fn displaced(&self) -> Vec<u16> {
+        self.per_object
+            .iter()
+            .filter(|o| {
+                let now = if self.applied {
+                    o.iou_common
+                } else {
+                    o.iou_given
+                };
+                o.iou_own >= now + DISPLACED_GAIN
+            })
+            .map(|o| o.id)
+            .collect()
+    }
+}
+
+/// How one unmoved object's silhouette fits its mask.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ObjectFit {
+    /// Its id in the new masks.
+    pub id: u16,
+    pub iou_given: f64,
+    pub iou_common: f64,
+    /// The integer shift that fits this object alone best, and its IoU.
+    pub own_shift_px: [i32; 2],
+    pub iou_own: f64,
 }
 
 /// One unmoved object: its silhouette's pixels at the given camera and its id in the new masks.
@@ -53,14 +103,39 @@ struct Silhouette {
     mask_size: usize,
 }
 
+impl Silhouette {
+    /// IoU of the silhouette shifted by `(dx, dy)` with its mask; other objects' pixels are not
+    /// counted against it.
+    fn iou(&self, inst: &InstanceMap, dx: i32, dy: i32) -> f64 {
+        let (w, h) = (inst.width as i32, inst.height as i32);
+        let (mut inter, mut extra) = (0usize, 0usize);
+        for &(x, y) in &self.pixels {
+            let (x, y) = (x + dx, y + dy);
+            let v = if x < 0 || y < 0 || x >= w || y >= h {
+                0
+            } else {
+                inst.data[(y * w + x) as usize]
+            };
+            if v == self.id {
+                inter += 1;
+            } else if v == 0 {
+                extra += 1;
+            }
+        }
+        inter as f64 / (self.mask_size + extra) as f64
+    }
+}
+
 /// The correction of `camera` from the objects `unmoved` (channel of `surfels`, id in `inst`), and
-/// the camera to use. `None` when no unmoved object is large enough in both.
+/// the camera to use (turned only when `correction` is on). `None` when no unmoved object is large enough
+/// in both.
 pub fn correct(
     surfels: &Surfels,
     unmoved: &[(usize, u16)],
     camera: &Camera,
     inst: &InstanceMap,
     settings: &RenderSettings,
+    correction: Stage,
 ) -> Result<(Camera, Option<CameraCorrection>)> {
     let settings = RenderSettings {
         maps: Maps::Rgb,
@@ -68,7 +143,7 @@ pub fn correct(
         sh_degree: Some(0),
         ..*settings
     };
-    let (w, h) = (inst.width as i32, inst.height as i32);
+    let w = inst.width as i32;
     let mut sils = Vec::new();
     for &(channel, id) in unmoved {
         let idx: Vec<usize> = channel_members(surfels, channel)
@@ -95,26 +170,23 @@ pub fn correct(
     if sils.is_empty() {
         return Ok((*camera, None));
     }
-    let score = |dx: i32, dy: i32| -> f64 {
-        let mut sum = 0.0;
-        for s in &sils {
-            let (mut inter, mut extra) = (0usize, 0usize);
-            for &(x, y) in &s.pixels {
-                let (x, y) = (x + dx, y + dy);
-                let v = if x < 0 || y < 0 || x >= w || y >= h {
-                    0
-                } else {
-                    inst.data[(y * w + x) as usize]
-                };
-                if v == s.id {
-                    inter += 1;
-                } else if v == 0 {
-                    extra += 1;
+    // IoU of every silhouette at every shift, row-major over (dy, dx) in ±MAX_SHIFT_PX.
+    let side = 2 * MAX_SHIFT_PX + 1;
+    let at = |dx: i32, dy: i32| ((dy + MAX_SHIFT_PX) * side + dx + MAX_SHIFT_PX) as usize;
+    let tables: Vec<Vec<f64>> = sils
+        .iter()
+        .map(|s| {
+            let mut t = vec![0.0; (side * side) as usize];
+            for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+                for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+                    t[at(dx, dy)] = s.iou(inst, dx, dy);
                 }
             }
-            sum += inter as f64 / (s.mask_size + extra) as f64;
-        }
-        sum / sils.len() as f64
+            t
+        })
+        .collect();
+    let score = |dx: i32, dy: i32| -> f64 {
+        tables.iter().map(|t| t[at(dx, dy)]).sum::<f64>() / tables.len() as f64
     };
     let given = score(0, 0);
     let mut best = (0, 0, given);
@@ -142,7 +214,31 @@ pub fn correct(
     let k = camera.intrinsics;
     let turn = DMat3::from_rotation_x(-shift[1] / k.fy) * DMat3::from_rotation_y(shift[0] / k.fx);
     let turn_deg = (shift[0] / k.fx).hypot(shift[1] / k.fy).to_degrees();
-    let applied = top >= given + MIN_GAIN;
+    let per_object: Vec<ObjectFit> = sils
+        .iter()
+        .zip(&tables)
+        .map(|(s, t)| {
+            let mut own = (0, 0, t[at(0, 0)]);
+            for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+                for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+                    if t[at(dx, dy)] > own.2 {
+                        own = (dx, dy, t[at(dx, dy)]);
+                    }
+                }
+            }
+            ObjectFit {
+                id: s.id,
+                iou_given: t[at(0, 0)],
+                iou_common: t[at(bx, by)],
+                own_shift_px: [own.0, own.1],
+                iou_own: own.2,
+            }
+        })
+        .collect();
+    let consistent = per_object
+        .iter()
+        .all(|o| o.iou_common >= o.iou_given - MAX_LOSS);
+    let applied = correction == Stage::On && top >= given + MIN_GAIN && consistent;
     let report = CameraCorrection {
         objects: sils.len(),
         shift_px: shift,
@@ -150,6 +246,7 @@ pub fn correct(
         iou_given: given,
         iou_shifted: top,
         applied,
+        per_object,
     };
     let corrected = if applied {
         Camera::from_glam(k, turn * camera.rotation(), turn * camera.translation())
@@ -162,7 +259,7 @@ pub fn correct(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::test_scene::{CHANNELS, camera, cylinder};
+    use crate::test_scene::{CHANNELS, block, camera, cylinder};
     use glam::DVec3;
 
     /// The pixel where `camera` sees `p`.
@@ -216,13 +313,46 @@ mod tests {
             &given,
             &inst,
             &RenderSettings::default(),
+            Stage::On,
         )
         .unwrap();
         let r = report.unwrap();
         assert!(r.applied && r.iou_shifted > r.iou_given + 0.1, "{r:?}");
+        assert!(r.displaced().is_empty(), "{r:?}");
         let p = DVec3::new(0.0, 0.0, 0.05);
         let (a, b) = (pixel(&got, p), pixel(&truth, p));
         assert!((a.0 - b.0).hypot(a.1 - b.1) < 0.7, "{a:?} against {b:?}");
+    }
+
+    #[test]
+    fn a_glass_knocked_aside_keeps_the_camera_and_is_found_displaced() {
+        // A wide box (7) and a glass (9); the new masks see the glass slid 15 mm along x and the
+        // camera is exact. Shifting both silhouettes with the glass raises their mean IoU (the
+        // box's edges are a small part of it), but makes the box fit worse: no camera error
+        // explains the masks.
+        let model_with = |glass_x: f32| {
+            let mut s = block(-0.16, -0.04, -0.04, 0.04, 0.10, 0);
+            s.append(&cylinder(glass_x, 0.03, 1));
+            s
+        };
+        let cam = camera();
+        let inst = masks(&model_with(0.075), &cam);
+        let (got, report) = correct(
+            &model_with(0.06),
+            &[(0, 7), (1, 9)],
+            &cam,
+            &inst,
+            &RenderSettings::default(),
+            Stage::On,
+        )
+        .unwrap();
+        let r = report.unwrap();
+        assert!(
+            !r.applied && r.iou_shifted >= r.iou_given + MIN_GAIN,
+            "{r:?}"
+        );
+        assert_eq!(got.rotation(), cam.rotation());
+        assert_eq!(r.displaced(), vec![9], "{r:?}");
     }
 
     #[test]
@@ -236,6 +366,7 @@ mod tests {
             &cam,
             &inst,
             &RenderSettings::default(),
+            Stage::On,
         )
         .unwrap();
         let r = report.unwrap();

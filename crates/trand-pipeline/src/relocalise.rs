@@ -13,7 +13,8 @@
 //! The objects the simulation may move (in contact, transitively, with a removed one:
 //! [`crate::contact`]) are always searched. Every other object keeps its t = 0 pose unless its
 //! rendered silhouette misses its mask ([`Relocalise::below_iou`]), which means the contact analysis
-//! was wrong. Objects are searched lowest first, each resting on the others as they then are.
+//! was wrong, or it fits its mask much better shifted ([`Object::displaced`]: a falling object
+//! knocked it aside). Objects are searched lowest first, each resting on the others as they then are.
 //!
 //! # Candidates ([`search`])
 //! Orientations over the whole sphere of up directions × yaws, each placed under the mask, made
@@ -138,6 +139,9 @@ pub enum Reason {
     Movable,
     /// The simulation could not move it, but its silhouette misses its mask.
     SilhouetteMiss,
+    /// The simulation could not move it, but its silhouette fits its mask far better shifted: it was
+    /// knocked aside ([`crate::new_camera::CameraCorrection::displaced`]).
+    Displaced,
     /// The simulation could not move it and it is on its mask: kept without a search.
     Static,
 }
@@ -223,6 +227,8 @@ pub struct Object {
     pub id: u16,
     pub surfels: Vec<u32>,
     pub new_id: u16,
+    /// Searched even when the simulation could not move it and its silhouette is on its mask.
+    pub displaced: bool,
 }
 
 /// Relocalises `objects` in `surfels`. `before` is the scene before the simulation (same surfel order:
@@ -282,6 +288,8 @@ pub fn relocalise(
             Reason::Movable
         } else if sim_render.iou < opts.below_iou {
             Reason::SilhouetteMiss
+        } else if obj.displaced {
+            Reason::Displaced
         } else {
             Reason::Static
         };

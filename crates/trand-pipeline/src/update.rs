@@ -175,22 +175,24 @@ pub fn update_with_cancel(
     // The new camera, turned to fit the objects the removal cannot have moved.
     let mut new_view = std::borrow::Cow::Borrowed(new_view);
     let mut camera_correction = None;
-    if let (true, Stage::On, Some(inst)) = (
-        object_aware,
-        opts.correct_camera,
-        new_view.instance.as_ref(),
-    ) {
+    if let (true, Some(inst)) = (object_aware, new_view.instance.as_ref()) {
         let unmoved: Vec<(usize, u16)> = channels
             .iter()
             .filter(|(id, _)| !removed.contains(id) && !movable.contains(id))
             .filter_map(|&(id, c)| Some((c, matches.iter().find(|m| m.object_id == id)?.new_id?)))
             .collect();
-        let (camera, report) =
-            crate::new_camera::correct(&surfels, &unmoved, &new_view.camera, inst, &settings)?;
-        camera_correction = report;
-        if report.is_some_and(|r| r.applied) {
+        let (camera, report) = crate::new_camera::correct(
+            &surfels,
+            &unmoved,
+            &new_view.camera,
+            inst,
+            &settings,
+            opts.correct_camera,
+        )?;
+        if report.as_ref().is_some_and(|r| r.applied) {
             new_view.to_mut().camera = camera;
         }
+        camera_correction = report;
     }
     let new_view: &View = &new_view;
     let relocalising = opts.relocalise == Stage::On && object_aware;
@@ -247,6 +249,10 @@ pub fn update_with_cancel(
         };
 
     let t_reloc = Instant::now();
+    // Objects knocked aside (their new ids), searched although the removal could not move them.
+    let displaced = camera_correction
+        .as_ref()
+        .map_or(Vec::new(), |c| c.displaced());
     let mut relocations = Vec::new();
     if let (Some(unmoved), Some(inst)) = (&unmoved, new_view.instance.as_ref()) {
         let objects: Vec<Object> = remaining
@@ -257,6 +263,7 @@ pub fn update_with_cancel(
                     id,
                     surfels: crate::simulate::channel_members(&surfels, c),
                     new_id,
+                    displaced: displaced.contains(&new_id),
                 })
             })
             .collect();

@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{State, View, ViewCount, select_train_views};
+use trand_pipeline::relocalise::Reason;
 use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
 use trand_pipeline::{Method, ReconstructOptions};
 
@@ -42,6 +43,7 @@ pub struct Args {
     pub relocalise: Option<Stage>,
     /// The new photo's camera: on (default) turns it to fit the objects the removal cannot have
     /// moved (a robot's pose error of a fraction of a degree shifts them all alike); off keeps it.
+    /// Either way an object that fits its mask far better shifted alone is searched (knocked aside).
     #[arg(long, value_enum)]
     pub correct_camera: Option<Stage>,
     /// Object ids to treat as removed (skips detection).
@@ -301,7 +303,7 @@ fn t1_manifest(
         .detail("relocalise", opts.relocalise)
         .detail("correct_camera", opts.correct_camera)
         .detail("relocations", &up.relocations)
-        .detail("camera_correction", up.camera_correction)
+        .detail("camera_correction", &up.camera_correction)
         .detail("movable", &up.movable)
         .detail("deleted_surfels", up.deleted_surfels)
         .detail("num_particles", up.num_particles)
@@ -443,7 +445,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ),
         }
     }
-    if let Some(c) = up.camera_correction.filter(|c| c.applied) {
+    if let Some(c) = up.camera_correction.as_ref().filter(|c| c.applied) {
         println!(
             "new camera turned {:.2}° to fit {} unmoved object(s): shifted ({:.1}, {:.1}) px, IoU {:.2} -> {:.2}",
             c.turn_deg, c.objects, c.shift_px[0], c.shift_px[1], c.iou_given, c.iou_shifted
@@ -459,8 +461,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             r.score_before.map_or(f64::NAN, |s| s.total),
             r.score_after.map_or(f64::NAN, |s| s.total),
         );
+        let why = match r.reason {
+            Reason::Movable => "it touched a removed object",
+            Reason::SilhouetteMiss => "its silhouette missed its mask",
+            Reason::Displaced => "knocked aside: its silhouette fit its mask better shifted",
+            Reason::Static => "static",
+        };
         println!(
-            "object {} relocalised: score {before:.2} -> {after:.2}, IoU {:.2} -> {:.2}, tilted {:.0}° from its t=0 vertical",
+            "object {} relocalised ({why}): score {before:.2} -> {after:.2}, IoU {:.2} -> {:.2}, tilted {:.0}° from its t=0 vertical",
             r.object_id,
             r.iou_before,
             r.iou_after,

@@ -57,6 +57,17 @@ fn image_of(objects: &[(&Surfels, u16)]) -> (InstanceMap, Rgb8Image) {
     )
 }
 
+/// What the update knows about the glass before the relocalisation.
+#[derive(Clone, Copy, PartialEq)]
+enum As {
+    /// The simulation could move it.
+    Movable,
+    /// The simulation could not move it.
+    Static,
+    /// The simulation could not move it, but the camera's check found it knocked aside.
+    Displaced,
+}
+
 /// Relocalises the glass (the first `n` surfels of `scene`, t = 0 shape `t0`) in `scene` given
 /// the new image; the rest of `scene` is the block (static). Returns the glass's report.
 fn run(
@@ -64,13 +75,15 @@ fn run(
     t0: &Surfels,
     n: usize,
     image: (&InstanceMap, &Rgb8Image),
-    movable: &[u16],
+    glass: As,
 ) -> Relocation {
+    let movable: &[u16] = if glass == As::Movable { &[1] } else { &[] };
     let mut before = t0.clone();
     let mut objects = vec![Object {
         id: 1,
         surfels: (0..n as u32).collect(),
         new_id: GLASS,
+        displaced: glass == As::Displaced,
     }];
     if scene.len() > n {
         before.append(&scene.gather(&(n..scene.len()).collect::<Vec<_>>()));
@@ -78,6 +91,7 @@ fn run(
             id: 2,
             surfels: (n as u32..scene.len() as u32).collect(),
             new_id: BLOCK,
+            displaced: false,
         });
     }
     let img = NewImage {
@@ -150,7 +164,7 @@ fn a_glass_leaning_on_a_block_is_recovered_though_its_simulated_pose_is_upright(
     // Simulated: upright where it stood.
     let mut scene = t0.clone();
     scene.append(&wall());
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Movable);
     let got = scene.gather(&(0..t0.len()).collect::<Vec<_>>());
     assert!(r.moved && r.reason == Reason::Movable, "{r:?}");
     let (before, after) = (r.score_before.unwrap(), r.score_after.unwrap());
@@ -180,7 +194,7 @@ fn a_simulated_pose_inside_another_object_is_replaced_by_one_beside_it() {
         .shifted(DVec3::new(0.085, 0.0, 0.0))
         .place(&t0, shape.centroid);
     scene.append(&wall());
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Movable);
     assert!(r.moved, "{r:?}");
     let before = r.score_before.unwrap();
     assert!(before.rest.clearance_m < -0.05, "{before:?}");
@@ -197,7 +211,7 @@ fn a_movable_glass_already_at_rest_on_its_mask_keeps_its_pose() {
     let t0 = cylinder(0.02, 0.01, 0);
     let (inst, rgb) = image_of(&[(&t0, GLASS)]);
     let mut scene = t0.clone();
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Movable);
     assert_eq!(r.reason, Reason::Movable);
     assert!(
         distance(&scene, &t0) < 0.004,
@@ -224,7 +238,7 @@ fn a_static_glass_that_tipped_over_and_rolled_is_moved_onto_its_mask() {
     .place(&t0, shape.centroid);
     let (inst, rgb) = image_of(&[(&truth, GLASS)]);
     let mut scene = t0.clone();
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Static);
     assert!(
         r.moved && r.reason == Reason::SilhouetteMiss && r.iou_before < 0.1,
         "{r:?}"
@@ -239,12 +253,32 @@ fn a_static_glass_on_its_mask_is_left_where_it_is_without_a_search() {
     let t0 = cylinder(0.02, 0.01, 0);
     let (inst, rgb) = image_of(&[(&t0, GLASS)]);
     let mut scene = t0.clone();
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Static);
     assert!(
         r.reason == Reason::Static && !r.moved && r.iou_before > 0.9 && r.evaluations == 0,
         "{r:?}"
     );
     assert_eq!(scene.means, t0.means);
+}
+
+#[test]
+fn a_static_glass_knocked_aside_is_searched_only_when_found_displaced() {
+    // Truth: slid 2 cm along x, still standing: its silhouette keeps an IoU above ½ with the mask.
+    let t0 = glass();
+    let mut truth = t0.clone();
+    for m in &mut truth.means {
+        m[0] += 0.02;
+    }
+    let (inst, rgb) = image_of(&[(&truth, GLASS)]);
+    let mut kept = t0.clone();
+    let r = run(&mut kept, &t0, t0.len(), (&inst, &rgb), As::Static);
+    assert!(r.reason == Reason::Static && r.iou_before > 0.5, "{r:?}");
+    let mut scene = t0.clone();
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Displaced);
+    assert!(r.reason == Reason::Displaced && r.moved, "{r:?}");
+    let err = distance(&scene, &truth);
+    assert!(err < 0.004, "surfels {err} m from the truth");
+    assert!(tilt_deg(&scene, &t0) < 5.0);
 }
 
 #[test]
@@ -270,7 +304,7 @@ fn a_glass_simulated_tilted_in_mid_air_over_its_mask_is_put_down_lying_as_the_im
         )
         .shifted(DVec3::new(0.03, 0.02, 0.01))
         .place(&t0, shape.centroid);
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Movable);
     assert!(r.iou_before > 0.5 && r.moved, "{r:?}");
     let before = r.score_before.unwrap();
     assert!(before.implausibility > 0.1, "{before:?}");
@@ -298,7 +332,7 @@ fn a_glass_on_its_base_is_put_down_flush_though_a_tilted_pose_fits_its_mask_bett
     let mut scene = Pose::IDENTITY
         .shifted(DVec3::new(0.04, 0.02, 0.01))
         .place(&t0, shape.centroid);
-    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), &[1]);
+    let r = run(&mut scene, &t0, t0.len(), (&inst, &rgb), As::Movable);
     assert!(r.moved, "{r:?}");
     let chosen = r.chosen.unwrap();
     assert!(chosen.tilt_deg < 2.0, "tilt {}°", chosen.tilt_deg);
@@ -361,6 +395,7 @@ fn a_glass_that_stood_on_a_removed_block_is_put_down_upright_though_its_base_was
         id: 1,
         surfels: (0..t0.len() as u32).collect(),
         new_id: GLASS,
+        displaced: false,
     }];
     let img = NewImage {
         camera: &camera(),
