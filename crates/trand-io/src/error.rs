@@ -74,7 +74,7 @@ pub enum IoError {
         channels: usize,
     },
     #[error(
-        "{path}: not a recognised sequence (expected a BOP folder with train_0/, transforms_sparse_train.json, or a nerfstudio transforms.json)"
+        "{path}: not a recognised sequence (expected a BOP folder with train_0/, transforms_sparse_train.json, a nerfstudio transforms.json, or a KeyPose capture's NNNNNN_L.pbtxt files)"
     )]
     UnknownFormat { path: PathBuf },
     #[error("{path}: PLY: {reason}")]

@@ -1,9 +1,10 @@
 //! Reading and writing trand's data.
 //!
-//! * Sequences: [`read_sequence`] auto-detects one of three layouts and returns a [`Sequence`] of
+//! * Sequences: [`read_sequence`] auto-detects one of four layouts and returns a [`Sequence`] of
 //!   [`View`]s (camera + optional RGB, instance map and depth):
 //!   [`bop`] (BlenderProc/BOP folders, our Blender data), [`transforms`] (the TRAN-D authors'
-//!   `transforms_sparse_*.json`), [`nerfstudio`] (`transforms.json`). All cameras come out in trand's
+//!   `transforms_sparse_*.json`), [`nerfstudio`] (`transforms.json`), [`keypose`] (a KeyPose
+//!   capture as the dataset ships it). All cameras come out in trand's
 //!   convention (OpenCV axes, world-to-camera, metres, integer pixel centres; see `trand_core::camera`).
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
 //! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY, [`points`]:
@@ -20,6 +21,7 @@ pub mod cameras;
 pub mod error;
 pub mod image;
 mod json;
+pub mod keypose;
 pub mod mesh;
 pub mod nerfstudio;
 pub mod npy;
@@ -67,9 +69,11 @@ pub enum Format {
     Bop,
     Transforms,
     Nerfstudio,
+    KeyPose,
 }
 
-/// Which layout `path` holds: a folder (checked in the order BOP, authors' transforms, nerfstudio), or
+/// Which layout `path` holds: a folder (checked in the order BOP, authors' transforms, nerfstudio,
+/// KeyPose), or
 /// a JSON file whose name says it (`transforms_sparse_*.json` → its folder as authors' transforms,
 /// `transforms.json` → nerfstudio).
 pub fn detect_format(path: &Path) -> Result<(Format, std::path::PathBuf), IoError> {
@@ -94,6 +98,8 @@ pub fn detect_format(path: &Path) -> Result<(Format, std::path::PathBuf), IoErro
         Ok((Format::Transforms, path.into()))
     } else if nerfstudio::is_nerfstudio(path) {
         Ok((Format::Nerfstudio, path.into()))
+    } else if keypose::is_keypose(path) {
+        Ok((Format::KeyPose, path.into()))
     } else {
         Err(IoError::UnknownFormat { path: path.into() })
     }
@@ -111,5 +117,6 @@ pub fn read_sequence_with(path: impl AsRef<Path>, opts: &LoadOptions) -> Result<
         Format::Bop => bop::read_bop(&root, opts),
         Format::Transforms => transforms::read_transforms(&root, opts),
         Format::Nerfstudio => nerfstudio::read_nerfstudio(&root, opts),
+        Format::KeyPose => keypose::read_keypose(&root, opts),
     }
 }
