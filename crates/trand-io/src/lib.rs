@@ -7,6 +7,7 @@
 //!   capture as the dataset ships it). All cameras come out in trand's
 //!   convention (OpenCV axes, world-to-camera, metres, integer pixel centres; see `trand_core::camera`).
 //! * [`select_train_views`]: the paper's 3/6/12 training views.
+//! * [`textproto`]: a small protobuf text-format reader (KeyPose's camera files).
 //! * [`ply`]: surfel PLY (2DGS names + TRAN-D extras), [`mesh`]: triangle-mesh PLY, [`points`]:
 //!   point-cloud PLY, [`splats`]: 3DGS PLY for splat viewers.
 //! * [`write`], [`npy`]: depth PNG (mm), float `.npy`, RGB/label PNGs, all written atomically; [`RunDir`].
@@ -35,6 +36,7 @@ pub mod run_layout;
 pub mod run_manifest;
 pub mod scratch;
 pub mod splats;
+pub mod textproto;
 pub mod transforms;
 pub mod view;
 pub mod write;

@@ -2,7 +2,8 @@
 //!
 //! An object at rest stays at rest unless something it touches changes. So the objects that may move
 //! at t = 1 are those touching a removed object (it supported them, or they leaned on it), then those
-//! touching one of these, and so on. Every other object keeps its t = 0 pose exactly. This matters
+//! touching one of these, and so on. Every other object keeps its t = 0 pose exactly (unless the new
+//! mask shows that a falling object knocked it aside: [`crate::new_camera`]). This matters
 //! because the simulation's material (the paper's, very soft) sags and slides under gravity even where
 //! nothing happens: left to the simulation, objects nobody touched drift by centimetres.
 //!

@@ -22,7 +22,8 @@
 //! [`MAX_LOSS`] condition. Each object's own best shift is searched too, and an object that fits by
 //! [`DISPLACED_GAIN`] better shifted than at the camera used is reported displaced
 //! ([`CameraCorrection::displaced`]): the relocalisation searches it like the objects the simulation
-//! moved. These fits are computed even when the turn is switched off.
+//! moved. These fits are computed even when the turn is switched off, against the camera the masks
+//! call for, so that a camera's error is not read as every object knocked.
 
 use glam::DMat3;
 use trand_core::{Camera, Surfels};
@@ -59,29 +60,16 @@ pub struct CameraCorrection {
     /// Mean IoU of the silhouettes with their masks, as given and shifted.
     pub iou_given: f64,
     pub iou_shifted: f64,
-    /// Whether the camera was turned ([`MIN_GAIN`]).
+    /// Whether the camera was turned: the turn is on, raises the mean IoU by [`MIN_GAIN`] and lowers
+    /// no object's by more than [`MAX_LOSS`] (at the integer shift).
     pub applied: bool,
-    /// Each object's fit: as given, at the common shift, and at its own best shift.
+    /// Each object's fit: as given, at the integer common shift, and at its own best shift.
     pub per_object: Vec<ObjectFit>,
-}
-
-impl CameraCorrection {
-    /// The objects that moved although the removal could not move them: shifted alone, their
-    /// silhouette fits its mask by [`DISPLACED_GAIN`] better than at the camera used.
-    pub fn displaced(&self) -> Vec<u16> {
-        self.per_object
-            .iter()
-            .filter(|o| {
-                let now = if self.applied {
-                    o.iou_common
-                } else {
-                    o.iou_given
-                };
-                o.iou_own >= now + DISPLACED_GAIN
-            })
-            .map(|o| o.id)
-            .collect()
-    }
+    /// The objects (new mask ids) that moved although the removal could not move them: shifted
+    /// alone, their silhouette fits its mask by [`DISPLACED_GAIN`] better than at the camera the
+    /// masks call for (the common shift when it passes the two conditions of `applied`, else the
+    /// given camera), whether or not the turn is switched on.
+    pub displaced: Vec<u16>,
 }
 
 /// How one unmoved object's silhouette fits its mask.
@@ -170,35 +158,9 @@ pub fn correct(
     if sils.is_empty() {
         return Ok((*camera, None));
     }
-    // IoU of every silhouette at every shift, row-major over (dy, dx) in ±MAX_SHIFT_PX.
-    let side = 2 * MAX_SHIFT_PX + 1;
-    let at = |dx: i32, dy: i32| ((dy + MAX_SHIFT_PX) * side + dx + MAX_SHIFT_PX) as usize;
-    let tables: Vec<Vec<f64>> = sils
-        .iter()
-        .map(|s| {
-            let mut t = vec![0.0; (side * side) as usize];
-            for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-                for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-                    t[at(dx, dy)] = s.iou(inst, dx, dy);
-                }
-            }
-            t
-        })
-        .collect();
-    let score = |dx: i32, dy: i32| -> f64 {
-        tables.iter().map(|t| t[at(dx, dy)]).sum::<f64>() / tables.len() as f64
-    };
-    let given = score(0, 0);
-    let mut best = (0, 0, given);
-    for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-        for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-            let s = score(dx, dy);
-            if s > best.2 {
-                best = (dx, dy, s);
-            }
-        }
-    }
-    let (bx, by, top) = best;
+    let tables = Tables::new(&sils, inst);
+    let given = tables.mean(0, 0);
+    let (bx, by, top) = argmax(|dx, dy| tables.mean(dx, dy));
     let vertex = |lo: f64, hi: f64| {
         let curve = lo - 2.0 * top + hi;
         if curve < 0.0 {
@@ -208,52 +170,120 @@ pub fn correct(
         }
     };
     let shift = [
-        bx as f64 + vertex(score(bx - 1, by), score(bx + 1, by)),
-        by as f64 + vertex(score(bx, by - 1), score(bx, by + 1)),
+        bx as f64 + vertex(tables.mean(bx - 1, by), tables.mean(bx + 1, by)),
+        by as f64 + vertex(tables.mean(bx, by - 1), tables.mean(bx, by + 1)),
     ];
-    let k = camera.intrinsics;
-    let turn = DMat3::from_rotation_x(-shift[1] / k.fy) * DMat3::from_rotation_y(shift[0] / k.fx);
-    let turn_deg = (shift[0] / k.fx).hypot(shift[1] / k.fy).to_degrees();
     let per_object: Vec<ObjectFit> = sils
         .iter()
-        .zip(&tables)
-        .map(|(s, t)| {
-            let mut own = (0, 0, t[at(0, 0)]);
-            for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-                for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
-                    if t[at(dx, dy)] > own.2 {
-                        own = (dx, dy, t[at(dx, dy)]);
-                    }
-                }
-            }
+        .enumerate()
+        .map(|(k, s)| {
+            let (ox, oy, own) = argmax(|dx, dy| tables.of(k, dx, dy));
             ObjectFit {
                 id: s.id,
-                iou_given: t[at(0, 0)],
-                iou_common: t[at(bx, by)],
-                own_shift_px: [own.0, own.1],
-                iou_own: own.2,
+                iou_given: tables.of(k, 0, 0),
+                iou_common: tables.of(k, bx, by),
+                own_shift_px: [ox, oy],
+                iou_own: own,
             }
         })
         .collect();
     let consistent = per_object
         .iter()
         .all(|o| o.iou_common >= o.iou_given - MAX_LOSS);
-    let applied = correction == Stage::On && top >= given + MIN_GAIN && consistent;
+    // Whether the masks say the camera is off; the objects are judged against that camera even
+    // when the turn is switched off, so a camera's error never reads as every object knocked.
+    let camera_off = top >= given + MIN_GAIN && consistent;
+    let displaced = per_object
+        .iter()
+        .filter(|o| {
+            let now = if camera_off {
+                o.iou_common
+            } else {
+                o.iou_given
+            };
+            o.iou_own >= now + DISPLACED_GAIN
+        })
+        .map(|o| o.id)
+        .collect();
+    let applied = correction == Stage::On && camera_off;
+    let k = camera.intrinsics;
     let report = CameraCorrection {
         objects: sils.len(),
         shift_px: shift,
-        turn_deg,
+        turn_deg: (shift[0] / k.fx).hypot(shift[1] / k.fy).to_degrees(),
         iou_given: given,
         iou_shifted: top,
         applied,
         per_object,
+        displaced,
     };
     let corrected = if applied {
+        let turn =
+            DMat3::from_rotation_x(-shift[1] / k.fy) * DMat3::from_rotation_y(shift[0] / k.fx);
         Camera::from_glam(k, turn * camera.rotation(), turn * camera.translation())
     } else {
         *camera
     };
     Ok((corrected, Some(report)))
+}
+
+/// Reach of the IoU tables: the search covers ±[`MAX_SHIFT_PX`], and the parabola through the best
+/// shift's neighbours one pixel more.
+const REACH: i32 = MAX_SHIFT_PX + 1;
+
+/// IoU of every silhouette with its mask at every integer shift within ±[`REACH`], row-major over
+/// `(dy, dx)`.
+struct Tables(Vec<Vec<f64>>);
+
+impl Tables {
+    const SIDE: i32 = 2 * REACH + 1;
+
+    fn new(sils: &[Silhouette], inst: &InstanceMap) -> Self {
+        Self(
+            sils.iter()
+                .map(|s| {
+                    let mut t = vec![0.0; (Self::SIDE * Self::SIDE) as usize];
+                    for dy in -REACH..=REACH {
+                        for dx in -REACH..=REACH {
+                            t[Self::at(dx, dy)] = s.iou(inst, dx, dy);
+                        }
+                    }
+                    t
+                })
+                .collect(),
+        )
+    }
+
+    fn at(dx: i32, dy: i32) -> usize {
+        debug_assert!(dx.abs() <= REACH && dy.abs() <= REACH);
+        ((dy + REACH) * Self::SIDE + dx + REACH) as usize
+    }
+
+    /// Object `k`'s IoU at shift `(dx, dy)`.
+    fn of(&self, k: usize, dx: i32, dy: i32) -> f64 {
+        self.0[k][Self::at(dx, dy)]
+    }
+
+    /// The mean IoU of all objects at shift `(dx, dy)`.
+    fn mean(&self, dx: i32, dy: i32) -> f64 {
+        let i = Self::at(dx, dy);
+        self.0.iter().map(|t| t[i]).sum::<f64>() / self.0.len() as f64
+    }
+}
+
+/// The integer shift within ±[`MAX_SHIFT_PX`] that maximises `f` and its value; `(0, 0)` unless
+/// another shift is strictly better.
+fn argmax(f: impl Fn(i32, i32) -> f64) -> (i32, i32, f64) {
+    let mut best = (0, 0, f(0, 0));
+    for dy in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+        for dx in -MAX_SHIFT_PX..=MAX_SHIFT_PX {
+            let v = f(dx, dy);
+            if v > best.2 {
+                best = (dx, dy, v);
+            }
+        }
+    }
+    best
 }
 
 #[cfg(test)]
@@ -294,11 +324,9 @@ mod tests {
         s
     }
 
-    #[test]
-    fn a_camera_turned_off_its_pose_is_turned_back_by_the_unmoved_objects() {
-        let s = two_glasses();
+    /// The true camera and one turned 0.8° about its own y axis and 0.5° about x.
+    fn true_and_turned() -> (Camera, Camera) {
         let truth = camera();
-        // The given camera is turned 0.8° about its own y axis and 0.5° about x.
         let off = DMat3::from_rotation_y(0.8f64.to_radians())
             * DMat3::from_rotation_x(0.5f64.to_radians());
         let given = Camera::from_glam(
@@ -306,6 +334,13 @@ mod tests {
             off * truth.rotation(),
             off * truth.translation(),
         );
+        (truth, given)
+    }
+
+    #[test]
+    fn a_camera_turned_off_its_pose_is_turned_back_by_the_unmoved_objects() {
+        let s = two_glasses();
+        let (truth, given) = true_and_turned();
         let inst = masks(&s, &truth);
         let (got, report) = correct(
             &s,
@@ -318,10 +353,35 @@ mod tests {
         .unwrap();
         let r = report.unwrap();
         assert!(r.applied && r.iou_shifted > r.iou_given + 0.1, "{r:?}");
-        assert!(r.displaced().is_empty(), "{r:?}");
+        assert!(r.displaced.is_empty(), "{r:?}");
         let p = DVec3::new(0.0, 0.0, 0.05);
         let (a, b) = (pixel(&got, p), pixel(&truth, p));
         assert!((a.0 - b.0).hypot(a.1 - b.1) < 0.7, "{a:?} against {b:?}");
+    }
+
+    #[test]
+    fn with_the_turn_off_a_camera_error_is_kept_and_not_read_as_knocked_objects() {
+        let s = two_glasses();
+        let (truth, given) = true_and_turned();
+        let inst = masks(&s, &truth);
+        let (got, report) = correct(
+            &s,
+            &[(0, 7), (1, 9)],
+            &given,
+            &inst,
+            &RenderSettings::default(),
+            Stage::Off,
+        )
+        .unwrap();
+        let r = report.unwrap();
+        assert!(!r.applied && r.iou_shifted > r.iou_given + 0.1, "{r:?}");
+        assert_eq!(got.rotation(), given.rotation());
+        // Each glass alone gains as much as under the common shift: neither was knocked.
+        assert!(
+            r.per_object.iter().all(|o| o.iou_own > o.iou_given + 0.1),
+            "{r:?}"
+        );
+        assert!(r.displaced.is_empty(), "{r:?}");
     }
 
     #[test]
@@ -352,7 +412,26 @@ mod tests {
             "{r:?}"
         );
         assert_eq!(got.rotation(), cam.rotation());
-        assert_eq!(r.displaced(), vec![9], "{r:?}");
+        assert_eq!(r.displaced, vec![9], "{r:?}");
+    }
+
+    #[test]
+    fn a_best_shift_at_the_edge_of_the_search_is_refined_within_the_tables() {
+        // The glass's mask lies ~19 px to the right of its silhouette: beyond the search, whose
+        // best shift is then its edge, and the parabola reads one pixel further.
+        let inst = masks(&cylinder(0.0, 0.0, 0), &camera());
+        let (_, report) = correct(
+            &cylinder(-0.06, 0.0, 0),
+            &[(0, 7)],
+            &camera(),
+            &inst,
+            &RenderSettings::default(),
+            Stage::On,
+        )
+        .unwrap();
+        let r = report.unwrap();
+        assert_eq!(r.per_object[0].own_shift_px[0], MAX_SHIFT_PX, "{r:?}");
+        assert!(r.shift_px[0] >= MAX_SHIFT_PX as f64 - 0.5, "{r:?}");
     }
 
     #[test]

@@ -80,7 +80,8 @@ use support::Support;
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Relocalise {
-    /// An object the simulation could not move is searched only when its silhouette IoU is below this.
+    /// An object the simulation could not move is searched when its silhouette IoU is below this (or
+    /// when [`Object::displaced`]).
     pub below_iou: f64,
     /// A found pose replaces the simulated one only when its score is higher by this much.
     pub min_gain: f64,

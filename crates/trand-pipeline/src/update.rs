@@ -15,7 +15,8 @@
 //!    move is searched for the pose at rest (on the table or on the other objects, in any
 //!    orientation) that best explains its instance mask and colours in the new image, with the
 //!    simulated pose as a prior; it replaces the simulated pose only when clearly better. An object the
-//!    simulation could not move is searched only when its silhouette misses its mask.
+//!    simulation could not move is searched only when its silhouette misses its mask or fits it far
+//!    better shifted alone (knocked aside by a falling one: [`crate::new_camera`]).
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
 //!    object lr 0.1, densification with the t = 0 scene extent).
 
@@ -252,7 +253,7 @@ pub fn update_with_cancel(
     // Objects knocked aside (their new ids), searched although the removal could not move them.
     let displaced = camera_correction
         .as_ref()
-        .map_or(Vec::new(), |c| c.displaced());
+        .map_or(Vec::new(), |c| c.displaced.clone());
     let mut relocations = Vec::new();
     if let (Some(unmoved), Some(inst)) = (&unmoved, new_view.instance.as_ref()) {
         let objects: Vec<Object> = remaining

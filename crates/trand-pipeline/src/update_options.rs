@@ -61,7 +61,8 @@ pub struct UpdateOptions {
     pub physics: Stage,
     pub refine: Stage,
     /// The new photo's camera turned to fit the objects the removal cannot have moved
-    /// ([`crate::new_camera`]).
+    /// ([`crate::new_camera`]). Off keeps the camera; the objects' fits, which find the ones knocked
+    /// aside, are computed either way.
     pub correct_camera: Stage,
     /// Silhouette relocalisation after the simulation.
     pub relocalise: Stage,

@@ -361,8 +361,8 @@ fn view_dict<'py>(py: Python<'py>, v: &View) -> PyResult<Bound<'py, PyDict>> {
     Ok(d)
 }
 
-/// Every view of a sequence folder (BOP, authors' transforms or nerfstudio), by split, and the frames
-/// `trand reconstruct --views N` trains on.
+/// Every view of a sequence folder (BOP, authors' transforms, nerfstudio or KeyPose), by split, and
+/// the frames `trand reconstruct --views N` trains on.
 #[pyfunction]
 #[pyo3(signature = (path, views))]
 fn load_sequence<'py>(

@@ -30,7 +30,8 @@ use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Sequence folder (BOP layout, the authors' transforms_sparse_*.json, or nerfstudio transforms.json).
+    /// Sequence folder (BOP layout, the authors' transforms_sparse_*.json, nerfstudio transforms.json,
+    /// or a KeyPose capture).
     #[arg(long)]
     pub data: PathBuf,
     /// Output run folder (must not exist).

@@ -37,13 +37,15 @@ pub struct Args {
     #[arg(long, value_enum)]
     pub refine: Option<Stage>,
     /// Relocalisation after the simulation: on (default) searches the resting poses of the objects the
-    /// simulation could move (and of any whose silhouette misses its mask) against the new image's
-    /// mask and colours; off keeps the simulated pose.
+    /// simulation could move (and of any whose silhouette misses its mask, or fits it far better
+    /// shifted alone: knocked aside) against the new image's mask and colours; off keeps the
+    /// simulated pose.
     #[arg(long, value_enum)]
     pub relocalise: Option<Stage>,
     /// The new photo's camera: on (default) turns it to fit the objects the removal cannot have
     /// moved (a robot's pose error of a fraction of a degree shifts them all alike); off keeps it.
-    /// Either way an object that fits its mask far better shifted alone is searched (knocked aside).
+    /// Either way, with the relocalisation on, an object that fits its mask far better shifted alone
+    /// is searched (knocked aside).
     #[arg(long, value_enum)]
     pub correct_camera: Option<Stage>,
     /// Object ids to treat as removed (skips detection).

@@ -335,7 +335,7 @@ def _split(views: List[Dict[str, Any]]) -> Dict[str, Any]:
 
 def load_sequence(path: PathLike, views: Optional[int] = 6) -> Dict[str, Any]:
     """The arrays of a sequence in any layout trand reads (BOP, the authors' transforms files,
-    nerfstudio ``transforms.json``), in trand's conventions.
+    nerfstudio ``transforms.json``, a KeyPose capture), in trand's conventions.
 
     Returns a dict with ``train_0``, ``train_1``, ``test_0`` and ``test_1``, each a dict of
     ``images`` (HxWx3 uint8), ``masks`` (HxW uint16), ``depth`` (HxW float32 metres; ``None`` where
