@@ -29,12 +29,14 @@ use trand_render::{GeometryMaps, Maps, RenderSettings};
 
 pub use crate::detect::{Identity, Match, detect};
 use crate::new_camera::CameraCorrection;
-use crate::relocalise::{NewImage, Object, Relocation, relocalise};
+use crate::relocalise::{NewImage, Object, Reason, Relocation, relocalise};
 pub use crate::simulate::{Simulation, simulate, virtual_cameras};
 use crate::surfel_ops::channel_probs;
 use crate::targets::{self, Supervision};
 use crate::trainer::{StepReport, Trainer};
-pub use crate::update_options::{MeshDepth, SceneScale, Stage, SurfelMotion, UpdateOptions};
+pub use crate::update_options::{
+    MeshDepth, RefineScope, SceneScale, Stage, SurfelMotion, UpdateOptions,
+};
 use crate::{PipelineError, Result};
 
 /// Result of an update.
@@ -327,6 +329,22 @@ pub fn update_with_cancel(
         let native = view.rgb.as_ref().map_or((0, 0), |i| (i.width, i.height));
         let coarse =
             targets::coarse_views(&opts.train.resolution, ds, native, |f| Ok(vec![build(f)?]))?;
+        // Objects nothing moved keep their t = 0 surfels (RefineScope::Moved): put back after.
+        let frozen: Vec<usize> = match opts.refine_scope {
+            RefineScope::All => Vec::new(),
+            RefineScope::Moved => remaining
+                .iter()
+                .filter(|(id, _)| {
+                    !movable.contains(id)
+                        && !relocations
+                            .iter()
+                            .any(|r: &Relocation| r.object_id == *id && r.reason != Reason::Static)
+                })
+                .map(|&(_, c)| c)
+                .collect(),
+        };
+        let kept = members_of(&surfels, &frozen);
+        let kept = surfels.gather(&kept);
         let mut trainer = Trainer::new(
             surfels,
             opts.train.clone(),
@@ -348,6 +366,13 @@ pub fn update_with_cancel(
             }
         }
         surfels = trainer.surfels;
+        let refined_frozen = members_of(&surfels, &frozen);
+        let mut keep = vec![true; surfels.len()];
+        for i in refined_frozen {
+            keep[i] = false;
+        }
+        surfels.retain(&keep);
+        surfels.append(&kept);
     }
     let refinement_s = t3.elapsed().as_secs_f64();
     Ok(Update {
@@ -370,4 +395,16 @@ pub fn update_with_cancel(
         refinement_s,
         curve,
     })
+}
+
+/// Indices of the surfels of objects `channels` (channel probability above ½), ascending.
+fn members_of(surfels: &Surfels, channels: &[usize]) -> Vec<usize> {
+    let mut out: Vec<usize> = channels
+        .iter()
+        .flat_map(|&c| crate::simulate::channel_members(surfels, c))
+        .map(|i| i as usize)
+        .collect();
+    out.sort_unstable();
+    out.dedup();
+    out
 }

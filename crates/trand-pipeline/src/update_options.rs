@@ -22,6 +22,18 @@ pub enum MeshDepth {
     Median,
 }
 
+/// Which objects the single-image refinement may change.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum RefineScope {
+    /// Only the objects that may have moved (the simulation's, and those the relocalisation
+    /// searched); every other object keeps its t = 0 surfels, which six views fixed better than one.
+    Moved,
+    /// Every object, as the paper.
+    All,
+}
+
 /// Whether surfels also rotate with their particle.
 ///
 /// One name per value in TOML, JSON and on the command line (`translate-rotate`,
@@ -60,6 +72,8 @@ pub enum Stage {
 pub struct UpdateOptions {
     pub physics: Stage,
     pub refine: Stage,
+    /// Which objects the refinement may change.
+    pub refine_scope: RefineScope,
     /// The new photo's camera turned to fit the objects the removal cannot have moved
     /// ([`crate::new_camera`]). Off keeps the camera; the objects' fits, which find the ones knocked
     /// aside, are computed either way.
@@ -196,6 +210,7 @@ impl Default for UpdateOptions {
         Self {
             physics: Stage::On,
             refine: Stage::On,
+            refine_scope: RefineScope::Moved,
             correct_camera: Stage::On,
             relocalise: Stage::On,
             relocalise_settings: Relocalise::default(),

@@ -11,7 +11,9 @@ use std::sync::atomic::AtomicBool;
 use trand_eval::{Metrics, evaluate};
 use trand_io::{Sequence, View, ViewCount, read_sequence, select_train_views};
 use trand_pipeline::outputs::render_views;
-use trand_pipeline::update::{SceneScale, Stage, UpdateOptions, update};
+use trand_pipeline::relocalise::Reason;
+use trand_pipeline::simulate::channel_members;
+use trand_pipeline::update::{RefineScope, SceneScale, Stage, UpdateOptions, update};
 use trand_pipeline::{ReconstructOptions, Supervision, reconstruct};
 use trand_render::RenderSettings;
 
@@ -194,4 +196,70 @@ fn same_seed_gives_bit_identical_surfels_for_one_and_two_threads() {
     assert_eq!(a.surfels.len(), b.surfels.len());
     assert_eq!(bits(&a.surfels), bits(&b.surfels));
     assert_eq!(a.curve, b.curve);
+}
+
+#[test]
+fn objects_nothing_moved_keep_their_t0_surfels_through_the_refinement() {
+    let dir = trand_io::ScratchDir::new("e2e-frozen").expect("scratch dir");
+    let seq = common::tiny(3, dir.path());
+    let mut opts = ReconstructOptions::default();
+    opts.train.iterations = 150;
+    let rec = reconstruct(&seq, &opts, None, &mut |_, _| {}, &AtomicBool::new(false))
+        .expect("reconstruct");
+    let new_view = seq.train_t1.iter().find(|v| v.frame == 0).expect("frame 0");
+    let means_of = |s: &trand_core::Surfels, channel: usize| -> Vec<[u32; 3]> {
+        let mut m: Vec<[u32; 3]> = channel_members(s, channel)
+            .into_iter()
+            .map(|i| s.means[i as usize].map(f32::to_bits))
+            .collect();
+        m.sort_unstable();
+        m
+    };
+    let run = |scope| {
+        let u = UpdateOptions {
+            refine_scope: scope,
+            ..Default::default()
+        };
+        update(
+            rec.surfels.clone(),
+            &rec.channels,
+            new_view,
+            scale(&seq, 1),
+            Supervision::ObjectAware,
+            &u,
+            &mut |_, _, _| {},
+            &mut |_| {},
+        )
+        .expect("update")
+    };
+    let moved = run(RefineScope::Moved);
+    assert!(!moved.curve.is_empty(), "the refinement ran");
+    let unmoved: Vec<(u16, usize)> = rec
+        .channels
+        .iter()
+        .copied()
+        .filter(|(id, _)| {
+            !moved.removed.contains(id)
+                && !moved.movable.contains(id)
+                && moved
+                    .relocations
+                    .iter()
+                    .all(|r| r.object_id != *id || r.reason == Reason::Static)
+        })
+        .collect();
+    assert!(
+        !unmoved.is_empty(),
+        "the tiny scene keeps an object nothing moved"
+    );
+    let all = run(RefineScope::All);
+    for &(id, c) in &unmoved {
+        let t0 = means_of(&rec.surfels, c);
+        assert!(!t0.is_empty());
+        assert_eq!(means_of(&moved.surfels, c), t0, "object {id} changed");
+        assert_ne!(
+            means_of(&all.surfels, c),
+            t0,
+            "object {id}: the paper's scope refines it"
+        );
+    }
 }
