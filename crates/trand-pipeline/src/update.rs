@@ -18,7 +18,9 @@
 //!    simulation could not move is searched only when its silhouette misses its mask or fits it far
 //!    better shifted alone (knocked aside by a falling one: [`crate::new_camera`]).
 //! 7. **Refinement**: 100 iterations on the single new image (no object-aware loss, opacity lr 0.5,
-//!    object lr 0.1, densification with the t = 0 scene extent).
+//!    object lr 0.1, densification with the t = 0 scene extent). Afterwards every object that may not
+//!    have moved (not movable, not searched) gets its t = 0 surfels back ([`RefineScope::Moved`]): one
+//!    image with a segmenter's boundaries only drags what six views fixed (BENCHMARKS.md §1).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;

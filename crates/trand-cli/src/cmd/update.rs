@@ -8,7 +8,9 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use trand_io::{State, View, ViewCount, select_train_views};
 use trand_pipeline::relocalise::Reason;
-use trand_pipeline::update::{Identity, MeshDepth, Stage, SurfelMotion, UpdateOptions, update};
+use trand_pipeline::update::{
+    Identity, MeshDepth, RefineScope, Stage, SurfelMotion, UpdateOptions, update,
+};
 use trand_pipeline::{Method, ReconstructOptions};
 
 use super::{canonical, name_of};
@@ -48,6 +50,10 @@ pub struct Args {
     /// is searched (knocked aside).
     #[arg(long, value_enum)]
     pub correct_camera: Option<Stage>,
+    /// Which objects the refinement may change: moved (default; the others keep their t=0 surfels)
+    /// or all (the paper).
+    #[arg(long, value_enum)]
+    pub refine_scope: Option<RefineScope>,
     /// Object ids to treat as removed (skips detection).
     #[arg(long, num_args = 1..)]
     pub removed: Option<Vec<u16>>,
@@ -220,6 +226,7 @@ fn update_options(
     opts.refine = a.refine.unwrap_or(opts.refine);
     opts.relocalise = a.relocalise.unwrap_or(opts.relocalise);
     opts.correct_camera = a.correct_camera.unwrap_or(opts.correct_camera);
+    opts.refine_scope = a.refine_scope.unwrap_or(opts.refine_scope);
     opts.identity = a.identity.unwrap_or(opts.identity);
     // A segmenter whose t = 0 ids needed association numbers the new image on its own as well.
     let t0_associated = run_json.identity_used() == Some("overlap");
@@ -304,6 +311,7 @@ fn t1_manifest(
         .detail("identity_from_t0", t1.t0_associated)
         .detail("relocalise", opts.relocalise)
         .detail("correct_camera", opts.correct_camera)
+        .detail("refine_scope", opts.refine_scope)
         .detail("relocations", &up.relocations)
         .detail("camera_correction", &up.camera_correction)
         .detail("movable", &up.movable)
