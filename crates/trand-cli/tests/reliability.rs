@@ -269,3 +269,27 @@ fn non_utf8_paths_run_to_the_end_without_panicking() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(out1.join("run.json").is_file());
 }
+
+#[test]
+fn training_masks_without_object_pixels_are_refused_naming_the_sequence() {
+    let dir = ScratchDir::new("cli-empty-masks").unwrap();
+    let seq = dir.path().join("seq");
+    common::sequence(&seq);
+    let masks = seq.join("train_0/mask_visib");
+    for e in std::fs::read_dir(&masks).unwrap() {
+        let p = e.unwrap().path();
+        let m = trand_io::image::read_gray8(&p).unwrap();
+        let empty = trand_io::image::Image::filled(m.width, m.height, 1, 0u8);
+        trand_io::write_gray8_png(&p, &empty).unwrap();
+    }
+    let out = dir.path().join("run");
+    let o = trand(&[
+        OsStr::new("reconstruct"),
+        "--data".as_ref(),
+        seq.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    fails_with(&o, &["seq", "no object pixels in any t=0 training mask"]);
+    assert!(!out.exists(), "nothing is written");
+}
