@@ -16,7 +16,7 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_pcg::Pcg64;
 use trand_core::{Surfels, math::softmax};
-use trand_io::{Sequence, TrainSelection, ViewCount, select_train_views};
+use trand_io::{Sequence, TrainSelection, View, ViewCount, select_train_views};
 use trand_train::config::{Activation, TrainConfig};
 use trand_train::init::{InitConfig, SlabBox, random_init, slab_points, surfels_from_points};
 
@@ -278,6 +278,17 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         )));
     }
     let sup = opts.method.supervision();
+    let no_objects = |v: &View| {
+        v.instance
+            .as_ref()
+            .is_none_or(|m| m.data.iter().all(|&id| id == 0))
+    };
+    if sup == Supervision::ObjectAware && chosen.iter().all(no_objects) {
+        return Err(PipelineError::Invalid(format!(
+            "{}: no object pixels in any t=0 training mask (0 is background)",
+            seq.root.display()
+        )));
+    }
     let mut report = IdentityReport {
         requested: opts.identity,
         used: Identity::ObjectIds,

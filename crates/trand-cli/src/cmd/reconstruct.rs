@@ -26,7 +26,7 @@ use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
 
 use super::{canonical, name_of};
-use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions, Supervision};
+use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -193,18 +193,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let phase = Arc::new(AtomicU8::new(Phase::Stoppable as u8));
     install_ctrlc(cancel.clone(), phase.clone());
     let seq = read_sequence(&a.data, opts.num_objects)?;
-    let no_objects = |v: &trand_io::View| {
-        v.instance
-            .as_ref()
-            .is_none_or(|m| m.data.iter().all(|&id| id == 0))
-    };
-    if opts.method.supervision() == Supervision::ObjectAware && seq.train_t0.iter().all(no_objects)
-    {
-        bail!(
-            "{}: no object pixels in any t=0 training mask (0 is background)",
-            a.data.display()
-        );
-    }
 
     let frames: Vec<u32> = match seq.train_selection {
         trand_io::TrainSelection::Listed => seq.train_t0.iter().map(|v| v.frame).collect(),
