@@ -115,8 +115,8 @@ impl Silhouette {
 }
 
 /// The correction of `camera` from the objects `unmoved` (channel of `surfels`, id in `inst`), and
-/// the camera to use (turned only when `correction` is on). `None` when no unmoved object is large enough
-/// in both.
+/// the camera to use (turned only when `correction` is on). `None` when no unmoved object is large
+/// enough in both.
 pub fn correct(
     surfels: &Surfels,
     unmoved: &[(usize, u16)],
@@ -317,6 +317,26 @@ mod tests {
         InstanceMap::from_vec(k.width, k.height, 1, ids).unwrap()
     }
 
+    /// [`correct`] of `camera` for `objects` with the default render settings, and its report.
+    fn check(
+        s: &Surfels,
+        objects: &[(usize, u16)],
+        camera: &Camera,
+        inst: &InstanceMap,
+        correction: Stage,
+    ) -> (Camera, CameraCorrection) {
+        let (got, report) = correct(
+            s,
+            objects,
+            camera,
+            inst,
+            &RenderSettings::default(),
+            correction,
+        )
+        .unwrap();
+        (got, report.expect("the objects are large enough"))
+    }
+
     fn two_glasses() -> Surfels {
         let mut s = cylinder(-0.05, 0.0, 0);
         s.append(&cylinder(0.06, 0.03, 1));
@@ -342,16 +362,7 @@ mod tests {
         let s = two_glasses();
         let (truth, given) = true_and_turned();
         let inst = masks(&s, &truth);
-        let (got, report) = correct(
-            &s,
-            &[(0, 7), (1, 9)],
-            &given,
-            &inst,
-            &RenderSettings::default(),
-            Stage::On,
-        )
-        .unwrap();
-        let r = report.unwrap();
+        let (got, r) = check(&s, &[(0, 7), (1, 9)], &given, &inst, Stage::On);
         assert!(r.applied && r.iou_shifted > r.iou_given + 0.1, "{r:?}");
         assert!(r.displaced.is_empty(), "{r:?}");
         let p = DVec3::new(0.0, 0.0, 0.05);
@@ -364,16 +375,7 @@ mod tests {
         let s = two_glasses();
         let (truth, given) = true_and_turned();
         let inst = masks(&s, &truth);
-        let (got, report) = correct(
-            &s,
-            &[(0, 7), (1, 9)],
-            &given,
-            &inst,
-            &RenderSettings::default(),
-            Stage::Off,
-        )
-        .unwrap();
-        let r = report.unwrap();
+        let (got, r) = check(&s, &[(0, 7), (1, 9)], &given, &inst, Stage::Off);
         assert!(!r.applied && r.iou_shifted > r.iou_given + 0.1, "{r:?}");
         assert_eq!(got.rotation(), given.rotation());
         // Each glass alone gains as much as under the common shift: neither was knocked.
@@ -397,16 +399,7 @@ mod tests {
         };
         let cam = camera();
         let inst = masks(&model_with(0.075), &cam);
-        let (got, report) = correct(
-            &model_with(0.06),
-            &[(0, 7), (1, 9)],
-            &cam,
-            &inst,
-            &RenderSettings::default(),
-            Stage::On,
-        )
-        .unwrap();
-        let r = report.unwrap();
+        let (got, r) = check(&model_with(0.06), &[(0, 7), (1, 9)], &cam, &inst, Stage::On);
         assert!(
             !r.applied && r.iou_shifted >= r.iou_given + MIN_GAIN,
             "{r:?}"
@@ -420,16 +413,13 @@ mod tests {
         // The glass's mask lies ~19 px to the right of its silhouette: beyond the search, whose
         // best shift is then its edge, and the parabola reads one pixel further.
         let inst = masks(&cylinder(0.0, 0.0, 0), &camera());
-        let (_, report) = correct(
+        let (_, r) = check(
             &cylinder(-0.06, 0.0, 0),
             &[(0, 7)],
             &camera(),
             &inst,
-            &RenderSettings::default(),
             Stage::On,
-        )
-        .unwrap();
-        let r = report.unwrap();
+        );
         assert_eq!(r.per_object[0].own_shift_px[0], MAX_SHIFT_PX, "{r:?}");
         assert!(r.shift_px[0] >= MAX_SHIFT_PX as f64 - 0.5, "{r:?}");
     }
@@ -439,16 +429,7 @@ mod tests {
         let s = two_glasses();
         let cam = camera();
         let inst = masks(&s, &cam);
-        let (got, report) = correct(
-            &s,
-            &[(0, 7), (1, 9)],
-            &cam,
-            &inst,
-            &RenderSettings::default(),
-            Stage::On,
-        )
-        .unwrap();
-        let r = report.unwrap();
+        let (got, r) = check(&s, &[(0, 7), (1, 9)], &cam, &inst, Stage::On);
         assert!(
             !r.applied && r.shift_px[0].abs() < 0.5 && r.shift_px[1].abs() < 0.5,
             "{r:?}"

@@ -177,6 +177,8 @@ pub fn update_with_cancel(
             .collect(),
     };
     let movable = crate::contact::may_move(&centres, &removed);
+    // A t = 0 object's instance id in the new mask, if it was found there.
+    let new_id_of = |id: u16| matches.iter().find(|m| m.object_id == id)?.new_id;
     // The new camera, turned to fit the objects the removal cannot have moved.
     let mut new_view = std::borrow::Cow::Borrowed(new_view);
     let mut camera_correction = None;
@@ -184,7 +186,7 @@ pub fn update_with_cancel(
         let unmoved: Vec<(usize, u16)> = channels
             .iter()
             .filter(|(id, _)| !removed.contains(id) && !movable.contains(id))
-            .filter_map(|&(id, c)| Some((c, matches.iter().find(|m| m.object_id == id)?.new_id?)))
+            .filter_map(|&(id, c)| Some((c, new_id_of(id)?)))
             .collect();
         let (camera, report) = crate::new_camera::correct(
             &surfels,
@@ -263,7 +265,7 @@ pub fn update_with_cancel(
         let objects: Vec<Object> = remaining
             .iter()
             .filter_map(|&(id, c)| {
-                let new_id = matches.iter().find(|m| m.object_id == id)?.new_id?;
+                let new_id = new_id_of(id)?;
                 Some(Object {
                     id,
                     surfels: crate::simulate::channel_members(&surfels, c),
