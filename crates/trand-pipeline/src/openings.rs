@@ -662,6 +662,9 @@ pub struct VesselTop {
     /// (see `reconstruct::retake_openings`).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub from_given_poses: bool,
+    /// Why the settled poses' hull closed it, where the given poses' opening was kept.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub settled_because: Option<Closed>,
     #[serde(flatten)]
     pub top: Top,
 }
@@ -713,6 +716,7 @@ pub fn classify(
             object_id: id,
             voxels: voxels.len(),
             from_given_poses: false,
+            settled_because: None,
             top,
         });
     }
