@@ -394,9 +394,9 @@ pub fn find_openings(
 /// where the settled poses' hull closes it as leaning or narrow: errors destroy a rim under a roof more
 /// easily than they make one. A pose error blurs the rims, which the settled poses restore; boundary
 /// errors move the settled cameras instead, and can tip an upright bowl or wine glass over the lean
-/// limit. A round top is the exception: perturbed inputs flatten a spheroid's dome into a bowl's crown,
-/// never the other way round, so where the settled hull reads one the object stays closed
-/// (BENCHMARKS.md §8 counts each case).
+/// limit. A round top is the exception: pose errors flatten a spheroid's dome into a bowl's crown far
+/// more often than they raise an open bowl's crown into a dome, so where the settled hull reads one
+/// the object stays closed (BENCHMARKS.md §8 counts both: five spheroids, one bowl).
 fn retake_openings(
     given: Vec<Opening>,
     given_tops: Vec<VesselTop>,
@@ -434,8 +434,8 @@ fn keep_given_openings<O>(
     for mut t in tops {
         match t.top {
             Top::Open { .. } => out.0.extend(settled_open.next()),
-            // A round top is the one closed reading errors do not make of an open vessel: boundary and
-            // pose errors tip rims into leaning or narrow tops, but flatten domes into bowls.
+            // A round top is the closed reading errors rarely make of an open vessel: they tip rims
+            // into leaning or narrow tops, and flatten domes into bowls.
             Top::Closed { because } if because != Closed::RoundTop => {
                 if let Some(o) = given_open.remove(&t.object_id) {
                     t.top = top_of(&o);
