@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How much of a perturbed copy's t=0 cost is the shift no training image shows.
 
-    python3 bench/shared_shift.py RUN COPY SEQ [--trand target/release/trand]
+    python3 bench/shared_shift.py RUN COPY SEQ [--axes xyz] [--trand target/release/trand]
 
 RUN is a finished `trand reconstruct` of COPY, a `trand perturb` copy of the exact sequence SEQ.
 Independent pose errors of the training views leave the corrected cameras a common offset: the
@@ -10,7 +10,7 @@ by a shift s (BENCHMARKS.md §8). The model is built where the corrected cameras
 at truth + s. This script measures s from `run.json`'s pose corrections (which hold the table-height move),
 renders the run with `trand render` at SEQ's t=0 test cameras moved by s, and prints the share of
 object pixels within 2.5 cm as run and with s removed (the metric of `trand eval`: uncovered pixels
-count with an error of their GT depth).
+count with an error of their GT depth). `--axes z` removes only the shift's vertical part.
 """
 import argparse
 import glob
@@ -106,9 +106,12 @@ def main():
     ap.add_argument("run")
     ap.add_argument("copy")
     ap.add_argument("seq")
+    ap.add_argument("--axes", default="xyz", help="the shift's components to remove (default xyz)")
     ap.add_argument("--trand", default="target/release/trand")
     a = ap.parse_args()
-    s = shared_shift(a.run, a.copy, a.seq)
+    if not a.axes or set(a.axes) - set("xyz"):
+        ap.error(f"--axes {a.axes!r}: give some of x, y, z")
+    s = shared_shift(a.run, a.copy, a.seq) * np.array([float(c in a.axes) for c in "xyz"])
     with tempfile.TemporaryDirectory() as tmp:
         as_run = within(a.run, a.seq, np.zeros(3), a.trand, tmp, "as_run")
         removed = within(a.run, a.seq, s, a.trand, tmp, "removed")
