@@ -658,13 +658,10 @@ fn line_fit(pts: &[(f64, DVec2)]) -> Option<(DVec2, DVec2)> {
 pub struct VesselTop {
     pub object_id: u16,
     pub voxels: usize,
-    /// The opening was found from the given poses and kept where the settled poses' hull closed it
-    /// (see `reconstruct::retake_openings`).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub from_given_poses: bool,
-    /// Why the settled poses' hull closed it, where the given poses' opening was kept.
+    /// The opening was found from the given poses and kept where the settled poses' hull closed it,
+    /// for this reason (see `reconstruct::retake_openings`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub settled_because: Option<Closed>,
+    pub from_given_poses: Option<Closed>,
     #[serde(flatten)]
     pub top: Top,
 }
@@ -715,8 +712,7 @@ pub fn classify(
         report.push(VesselTop {
             object_id: id,
             voxels: voxels.len(),
-            from_given_poses: false,
-            settled_because: None,
+            from_given_poses: None,
             top,
         });
     }

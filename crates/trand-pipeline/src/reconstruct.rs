@@ -439,8 +439,7 @@ fn keep_given_openings<O>(
             Top::Closed { because } if because != Closed::RoundTop => {
                 if let Some(o) = given_open.remove(&t.object_id) {
                     t.top = top_of(&o);
-                    t.from_given_poses = true;
-                    t.settled_because = Some(because);
+                    t.from_given_poses = Some(because);
                     out.0.push(o);
                 }
             }
@@ -1081,8 +1080,7 @@ mod tests {
         VesselTop {
             object_id: id,
             voxels: 1000,
-            from_given_poses: false,
-            settled_because: None,
+            from_given_poses: None,
             top: match rim_z {
                 Some(rim_z) => Top::Open {
                     shape: Shape::Bowl,
@@ -1122,7 +1120,7 @@ mod tests {
         let rims: Vec<_> = tops.iter().map(rim).collect();
         assert_eq!(rims, vec![Some(0.01), Some(0.2), Some(0.3), None]);
         let kept: Vec<_> = tops.iter().map(|t| t.from_given_poses).collect();
-        assert_eq!(kept, vec![true, false, false, false]);
+        assert_eq!(kept, vec![Some(Closed::Leaning), None, None, None]);
     }
 
     #[test]
@@ -1139,7 +1137,7 @@ mod tests {
         assert_eq!(openings, vec![0.01]);
         let rims: Vec<_> = tops.iter().map(rim).collect();
         assert_eq!(rims, vec![Some(0.01), None]);
-        assert_eq!(tops[0].settled_because, Some(Closed::Leaning));
-        assert_eq!(tops[1].settled_because, None);
+        assert_eq!(tops[0].from_given_poses, Some(Closed::Leaning));
+        assert_eq!(tops[1].from_given_poses, None);
     }
 }
