@@ -1033,8 +1033,10 @@ pub fn reconstruct_from(
 }
 
 /// After training: the table's height seen through the (corrected) cameras ([`table_height`]).
-/// With refined poses, where its texture shows it at least [`MIN_TABLE_SHIFT_M`] off z = 0, the
-/// frame is moved to put it there: cameras and surfels together, so no training image changes.
+/// With refined poses, where its texture or its shading shows it at least [`MIN_TABLE_SHIFT_M`] off
+/// z = 0 ([`table_height::TableFit::reading`]), the frame is moved towards it by the reading's
+/// [`table_height::Reading::share`] of that height: cameras and surfels together, so no training
+/// image changes. The surfels under the table are dropped after the move ([`object_filter`]).
 /// Poses kept as given are the user's: measured only. Done once at the end, so that what training
 /// decided (the opening prior above all, whose voxel grid is fixed to the world) is decided as
 /// without it, and a resumed run does alike.
@@ -1051,8 +1053,11 @@ fn level_table(
         .collect();
     let fit = table_height::measure(views, &cameras);
     let refined = refinement != trand_train::PoseRefinement::Fixed;
-    let shift = match fit {
-        Some(f) if refined && f.textured() && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.height_m,
+    let reading = fit.and_then(|f| f.reading());
+    let shift = match (fit, reading) {
+        (Some(f), Some(r)) if refined && f.height_m.abs() >= MIN_TABLE_SHIFT_M => {
+            r.share() * f.height_m
+        }
         _ => 0.0,
     };
     if shift != 0.0 {
@@ -1063,6 +1068,7 @@ fn level_table(
     }
     TableLevel {
         fit,
+        reading,
         shifted_m: shift,
     }
 }

@@ -18,10 +18,10 @@
 //! **Gauge.** Moving the whole scene and every camera together changes no image, so only the views'
 //! corrections relative to each other are observable. After each step the mean correction over the
 //! views is subtracted: the cameras keep their average pose, which is the best estimate when the
-//! errors are independent per view (a bias shared by every view cannot be seen in the images). A
-//! height the table's texture shows (`trand_pipeline::table_height`) is the one part of that bias
-//! that can be measured: once training ends, [`PoseCorrections::shift_world`] moves the whole frame
-//! by it (and would hold the mean correction there if training went on). A scaling of every camera
+//! errors are independent per view (a bias shared by every view cannot be seen in the images). The
+//! table's height through the corrected cameras (`trand_pipeline::table_height`) is the one part of
+//! that bias that can be measured: once training ends, [`PoseCorrections::shift_world`] moves the
+//! whole frame towards it (and would hold the mean correction there if training went on). A scaling of every camera
 //! centre is nearly a gauge too (the scene scaled with its cameras looks alike): the cameras drift
 //! along their rays, which the mean turns into a vertical shift of the frame, yet removing that mode
 //! as well, or holding each camera's distance to the scene, cost depth (BENCHMARKS.md §10).

@@ -290,10 +290,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let side = |h: f64| if h > 0.0 { "above" } else { "below" };
     match (rec.table.shifted_m, rec.table.fit) {
-        (h, _) if h != 0.0 => eprintln!(
-            "note: the refined cameras see the table {:.1} mm {} z = 0 (its texture); the scene was moved onto it",
-            h.abs() * 1e3,
-            side(h)
+        (m, Some(f)) if m != 0.0 => eprintln!(
+            "note: the refined cameras see the table {:.1} mm {} z = 0 (its {}); the scene was moved {:.1} mm towards it",
+            f.height_m.abs() * 1e3,
+            side(f.height_m),
+            match rec.table.reading {
+                Some(trand_pipeline::table_height::Reading::Broad) => "shading",
+                _ => "texture",
+            },
+            m.abs() * 1e3
         ),
         (_, Some(f))
             if f.textured() && f.height_m.abs() >= trand_pipeline::table_height::WARN_M =>
