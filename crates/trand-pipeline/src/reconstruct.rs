@@ -1146,4 +1146,57 @@ mod tests {
         assert_eq!(tops[0].from_given_poses, Some(Closed::Leaning));
         assert_eq!(tops[1].from_given_poses, None);
     }
+
+    /// `level_table` on six views of a table `height` below z = 0: where one surfel ends up, the
+    /// move, and how the height was read.
+    fn levelled(
+        paint: fn(f64, f64) -> f32,
+        pose: trand_train::PoseRefinement,
+    ) -> (f32, TableLevel) {
+        let height = -0.004;
+        let views = crate::table_height::painted::views_of_table(height, paint);
+        let mut surfels = Surfels::new(0, 2).expect("surfels");
+        surfels.push(&trand_core::surfels::Surfel {
+            mean: [0.0, 0.0, 0.05],
+            log_scale: [-5.0, -5.0],
+            quat: [1.0, 0.0, 0.0, 0.0],
+            opacity_logit: 0.0,
+            sh_dc: [0.0; 3],
+            mask_dc: [0.0; 3],
+            obj_logits: Vec::new(),
+        });
+        let mut poses = trand_train::PoseCorrections::new(views.len());
+        let level = level_table(&mut surfels, &mut poses, &views, pose);
+        (surfels.means[0][2], level)
+    }
+
+    #[test]
+    fn a_refined_frame_moves_onto_a_textured_table_and_half_way_to_a_plain_one() {
+        use crate::table_height::{BROAD_SHARE, Reading, painted};
+        let refine = trand_train::PoseRefinement::refine();
+        for (paint, reading, share) in [
+            (
+                painted::speckle as fn(f64, f64) -> f32,
+                Reading::Textured,
+                1.0,
+            ),
+            (painted::soft_shadows, Reading::Broad, BROAD_SHARE),
+        ] {
+            let (z, level) = levelled(paint, refine);
+            let h = level.fit.expect("the views see the table").height_m;
+            assert!((h + 0.004).abs() < 1e-3, "{level:?}");
+            assert_eq!(level.reading, Some(reading));
+            assert_eq!(level.shifted_m, share * h);
+            assert!(
+                (f64::from(z) - (0.05 - share * h)).abs() < 1e-6,
+                "surfel at {z}"
+            );
+        }
+        let (z, fixed) = levelled(painted::soft_shadows, trand_train::PoseRefinement::Fixed);
+        assert_eq!(
+            (fixed.shifted_m, z),
+            (0.0, 0.05),
+            "poses kept as given are not moved"
+        );
+    }
 }

@@ -418,13 +418,14 @@ impl Zncc {
     }
 }
 
+/// Tables painted and seen from six views, for the tests of this module and of the frame's move.
 #[cfg(test)]
-mod tests {
+pub(crate) mod painted {
     use super::*;
     use trand_core::Intrinsics;
 
     /// Value noise on an 8 mm grid (bilinear between hashed corners): a texture with no period.
-    fn speckle(x: f64, y: f64) -> f32 {
+    pub(crate) fn speckle(x: f64, y: f64) -> f32 {
         let corner = |i: i64, j: i64| {
             let mut k = (i.wrapping_mul(73_856_093) ^ j.wrapping_mul(19_349_663)) as u64;
             k ^= k >> 13;
@@ -441,7 +442,7 @@ mod tests {
     }
 
     /// Six views around a table at `height` painted with `paint`, and a 3 cm object standing on it.
-    fn views_of_table(height: f64, paint: fn(f64, f64) -> f32) -> Vec<TrainView> {
+    pub(crate) fn views_of_table(height: f64, paint: fn(f64, f64) -> f32) -> Vec<TrainView> {
         let (w, h) = (320, 240);
         (0..6)
             .map(|k| {
@@ -483,6 +484,23 @@ mod tests {
             .collect()
     }
 
+    /// Soft shadows a few centimetres wide on an otherwise even table: a plain table's shading.
+    pub(crate) fn soft_shadows(x: f64, y: f64) -> f32 {
+        let blob = |cx: f64, cy: f64, s: f64| {
+            (-((x - cx).powi(2) + (y - cy).powi(2)) / (2.0 * s * s)).exp()
+        };
+        (0.7 - 0.25 * blob(0.05, 0.02, 0.03)
+            - 0.2 * blob(-0.06, 0.05, 0.04)
+            - 0.15 * blob(0.0, -0.07, 0.05)
+            + 0.1 * x) as f32
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::painted::{soft_shadows, speckle, views_of_table};
+    use super::*;
+
     fn fit(height: f64, paint: fn(f64, f64) -> f32) -> TableFit {
         let views = views_of_table(height, paint);
         let cameras: Vec<Camera> = views.iter().map(|v| v.camera).collect();
@@ -502,17 +520,6 @@ mod tests {
     fn a_plain_table_lit_by_a_linear_gradient_alone_shows_no_height() {
         let f = fit(0.003, |x, y| (0.5 + 0.4 * x - 0.2 * y) as f32);
         assert_eq!(f.reading(), None, "{f:?}");
-    }
-
-    /// Soft shadows a few centimetres wide on an otherwise even table: a plain table's shading.
-    fn soft_shadows(x: f64, y: f64) -> f32 {
-        let blob = |cx: f64, cy: f64, s: f64| {
-            (-((x - cx).powi(2) + (y - cy).powi(2)) / (2.0 * s * s)).exp()
-        };
-        (0.7 - 0.25 * blob(0.05, 0.02, 0.03)
-            - 0.2 * blob(-0.06, 0.05, 0.04)
-            - 0.15 * blob(0.0, -0.07, 0.05)
-            + 0.1 * x) as f32
     }
 
     #[test]
