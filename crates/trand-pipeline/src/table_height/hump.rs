@@ -2,7 +2,7 @@
 //! from a comb of alias peaks or a curve with no top ([`crate::table_height`], module docs).
 //!
 //! A least-squares fit of `s ≈ a x² + b x + c` over the sweep (heights centred on its middle for
-//! conditioning), solved from the 3×3 normal equations (`glam`'s `DMat3`, symmetric).
+//! conditioning), solved from its 3×3 normal equations with `glam`'s `DMat3`.
 
 use glam::{DMat3, DVec3};
 
@@ -10,58 +10,43 @@ use glam::{DMat3, DVec3};
 /// when that parabola opens upwards or has its vertex outside `heights`' range. A single hump scores
 /// near 1; a comb of alias peaks, or a curve with no top, near 0.
 pub fn hump(heights: &[f64], scores: &[f64]) -> f64 {
-    let n = scores.len() as f64;
+    let (Some(&first), Some(&last)) = (heights.first(), heights.last()) else {
+        return 0.0;
+    };
     if scores.len() < 3 {
         return 0.0;
     }
-    // Normal equations of s ≈ a h² + b h + c, in h centred on the sweep for conditioning.
-    let mid = 0.5 * (heights[0] + heights[heights.len() - 1]);
-    let mut m = [[0.0f64; 3]; 3];
-    let mut r = [0.0f64; 3];
-    for (&h, &s) in heights.iter().zip(scores) {
+    // Normal equations of s ≈ a x² + b x + c, with x = h − mid centred on the sweep for conditioning.
+    let mid = 0.5 * (first + last);
+    let basis = |h: f64| {
         let x = h - mid;
-        let f = [x * x, x, 1.0];
-        for i in 0..3 {
-            for j in 0..3 {
-                m[i][j] += f[i] * f[j];
-            }
-            r[i] += f[i] * s;
-        }
-    }
-    let Some([a, b, c]) = solve3(m, r) else {
-        return 0.0;
+        DVec3::new(x * x, x, 1.0)
     };
-    let vertex = mid - b / (2.0 * a);
-    let (lo, hi) = (
-        heights[0].min(heights[heights.len() - 1]),
-        heights[0].max(heights[heights.len() - 1]),
-    );
-    if a >= 0.0 || !(lo..=hi).contains(&vertex) {
+    let (mut m, mut r) = (DMat3::ZERO, DVec3::ZERO);
+    for (&h, &s) in heights.iter().zip(scores) {
+        let f = basis(h);
+        m += DMat3::from_cols(f * f.x, f * f.y, f * f.z);
+        r += f * s;
+    }
+    if m.determinant().abs() < 1e-300 {
         return 0.0;
     }
-    let mean = scores.iter().sum::<f64>() / n;
+    let coef = m.inverse() * r;
+    let vertex = mid - coef.y / (2.0 * coef.x);
+    if coef.x >= 0.0 || !(first.min(last)..=first.max(last)).contains(&vertex) {
+        return 0.0;
+    }
+    let mean = scores.iter().sum::<f64>() / scores.len() as f64;
     let total: f64 = scores.iter().map(|s| (s - mean).powi(2)).sum();
     let residual: f64 = heights
         .iter()
         .zip(scores)
-        .map(|(&h, &s)| {
-            let x = h - mid;
-            (s - (a * x * x + b * x + c)).powi(2)
-        })
+        .map(|(&h, &s)| (s - coef.dot(basis(h))).powi(2))
         .sum();
     if total <= 0.0 {
         return 0.0;
     }
     (1.0 - residual / total).max(0.0)
-}
-
-/// Solves the symmetric 3×3 system `m x = r`, `None` when it is singular.
-fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
-    let m = DMat3::from_cols_array_2d(&m);
-    if m.determinant().abs() < 1e-300 {
-        return None;
-    }
-    Some((m.inverse() * DVec3::from_array(r)).to_array())
 }
 
 #[cfg(test)]
