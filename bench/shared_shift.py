@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How much of a perturbed copy's t=0 cost is the shift no training image shows.
 
-    python3 bench/shared_shift.py RUN COPY SEQ [--axes xyz] [--trand target/release/trand]
+    python3 bench/shared_shift.py RUN COPY SEQ [--axes xyz] [--given] [--trand target/release/trand]
 
 RUN is a finished `trand reconstruct` of COPY, a `trand perturb` copy of the exact sequence SEQ.
 Independent pose errors of the training views leave the corrected cameras a common offset: the
@@ -48,8 +48,9 @@ def object_centres(seq):
     return [R.T @ (np.array(o["cam_t_m2c"], float) / 1000.0 - t) for o in gt[str(k)]]
 
 
-def shared_shift(run, copy, seq):
-    """The least-squares shift s with which the corrected training cameras see every object centre."""
+def shared_shift(run, copy, seq, given_only=False):
+    """The least-squares shift s with which the corrected training cameras see every object centre
+    (the given ones, uncorrected, with `given_only`)."""
     r = json.load(open(f"{run}/run.json"))
     given = cameras(f"{copy}/train_0/scene_camera.json")
     exact = cameras(f"{seq}/train_0/scene_camera.json")
@@ -59,8 +60,9 @@ def shared_shift(run, copy, seq):
         Rg, tg, _ = given[f]
         Re, te, _ = exact[f]
         # Corrected camera: x_c = R_g (exp([w]x) x + d) + t_g (d includes the table-height move).
-        Rc = Rg @ rotation(np.array(v["omega_rad"]))
-        tc = Rg @ np.array(v["delta_m"]) + tg
+        w, d = (np.zeros(3), np.zeros(3)) if given_only else (v["omega_rad"], v["delta_m"])
+        Rc = Rg @ rotation(np.array(w))
+        tc = Rg @ np.array(d) + tg
         centre = -Re.T @ te
         for X in object_centres(seq):
             # The point the corrected camera sees where the exact one sees X, across the ray.
@@ -107,10 +109,14 @@ def main():
     ap.add_argument("copy")
     ap.add_argument("seq")
     ap.add_argument("--axes", default="xyz", help="the shift's components to remove (default xyz)")
+    ap.add_argument("--given", action="store_true", help="also print the given cameras' shift")
     ap.add_argument("--trand", default="target/release/trand")
     a = ap.parse_args()
     if not a.axes or set(a.axes) - set("xyz"):
         ap.error(f"--axes {a.axes!r}: give some of x, y, z")
+    if a.given:
+        g = shared_shift(a.run, a.copy, a.seq, given_only=True)
+        print(f"given cameras' shift (mm) {np.round(1000 * g, 2).tolist()}")
     s = shared_shift(a.run, a.copy, a.seq) * np.array([float(c in a.axes) for c in "xyz"])
     with tempfile.TemporaryDirectory() as tmp:
         as_run = within(a.run, a.seq, np.zeros(3), a.trand, tmp, "as_run")
