@@ -662,6 +662,10 @@ pub struct VesselTop {
     /// for this reason (see `reconstruct::retake_openings`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub from_given_poses: Option<Closed>,
+    /// The settled poses' hull opened it as this shape, and the given poses' read a round top: it
+    /// stays closed (see `reconstruct::retake_openings`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub opened_when_settled: Option<Shape>,
     #[serde(flatten)]
     pub top: Top,
 }
@@ -713,6 +717,7 @@ pub fn classify(
             object_id: id,
             voxels: voxels.len(),
             from_given_poses: None,
+            opened_when_settled: None,
             top,
         });
     }

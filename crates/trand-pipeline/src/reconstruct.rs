@@ -9,7 +9,7 @@
 //! points that project onto an object pixel in every training view that sees them. Surfels that start
 //! outside every object cost time and are pruned anyway, since the masked targets are black there.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -395,8 +395,8 @@ pub fn find_openings(
 /// easily than they make one. A pose error blurs the rims, which the settled poses restore; boundary
 /// errors move the settled cameras instead, and can tip an upright bowl or wine glass over the lean
 /// limit. A round top is the exception: pose errors flatten a spheroid's dome into a bowl's crown far
-/// more often than they raise an open bowl's crown into a dome, so where the settled hull reads one
-/// the object stays closed (BENCHMARKS.md §8 counts both: five spheroids, one bowl).
+/// more often than they raise an open bowl's crown into a dome, so where either hull reads one the
+/// object stays closed (BENCHMARKS.md §8 counts both ways).
 fn retake_openings(
     given: Vec<Opening>,
     given_tops: Vec<VesselTop>,
@@ -415,7 +415,8 @@ fn retake_openings(
 
 /// The settled decision (`openings` in the order of the open `tops`, as
 /// [`crate::openings::classify`] gives them) with every object it closes but the given decision opened
-/// opened as the given one was (`top_of` its opening's report).
+/// opened as the given one was (`top_of` its opening's report), unless it closes it as a round top,
+/// and every object it opens but the given decision read as a round top closed.
 fn keep_given_openings<O>(
     given: Vec<O>,
     given_tops: &[VesselTop],
@@ -429,10 +430,31 @@ fn keep_given_openings<O>(
         .map(|t| t.object_id)
         .zip(given)
         .collect();
+    let given_round: HashSet<u16> = given_tops
+        .iter()
+        .filter(|t| {
+            matches!(
+                t.top,
+                Top::Closed {
+                    because: Closed::RoundTop
+                }
+            )
+        })
+        .map(|t| t.object_id)
+        .collect();
     let mut settled_open = openings.into_iter();
     let mut out = (Vec::new(), Vec::new());
     for mut t in tops {
         match t.top {
+            // Either pose set's round top closes the object: the given poses' dome, flattened by
+            // the settled cameras and eroded masks, can pass for a bowl's crown as well.
+            Top::Open { shape, .. } if given_round.contains(&t.object_id) => {
+                settled_open.next();
+                t.top = Top::Closed {
+                    because: Closed::RoundTop,
+                };
+                t.opened_when_settled = Some(shape);
+            }
             Top::Open { .. } => out.0.extend(settled_open.next()),
             // A round top is the closed reading errors rarely make of an open vessel: they tip rims
             // into leaning or narrow tops, and flatten domes into bowls.
@@ -1087,6 +1109,7 @@ mod tests {
             object_id: id,
             voxels: 1000,
             from_given_poses: None,
+            opened_when_settled: None,
             top: match rim_z {
                 Some(rim_z) => Top::Open {
                     shape: Shape::Bowl,
@@ -1145,6 +1168,34 @@ mod tests {
         assert_eq!(rims, vec![Some(0.01), None]);
         assert_eq!(tops[0].from_given_poses, Some(Closed::Leaning));
         assert_eq!(tops[1].from_given_poses, None);
+    }
+
+    #[test]
+    fn a_round_top_the_given_poses_see_keeps_closed_what_the_settled_poses_open() {
+        let given_tops = [closed_as(1, None, Closed::RoundTop), top(2, None)];
+        let settled_tops = vec![top(1, Some(0.1)), top(2, Some(0.2))];
+        let (openings, tops) = keep_given_openings(
+            Vec::new(),
+            &given_tops,
+            vec![0.1, 0.2],
+            settled_tops,
+            |&z| top(0, Some(z)).top,
+        );
+        assert_eq!(
+            openings,
+            vec![0.2],
+            "a settled opening stands over a given leaning top"
+        );
+        let rims: Vec<_> = tops.iter().map(rim).collect();
+        assert_eq!(rims, vec![None, Some(0.2)]);
+        assert!(matches!(
+            tops[0].top,
+            Top::Closed {
+                because: Closed::RoundTop
+            }
+        ));
+        assert_eq!(tops[0].opened_when_settled, Some(Shape::Bowl));
+        assert_eq!(tops[1].opened_when_settled, None);
     }
 
     /// `level_table` on six views of a table `height` below z = 0: where one surfel ends up, the
