@@ -28,6 +28,7 @@ pub mod new_camera;
 pub mod openings;
 pub mod outputs;
 pub mod reconstruct;
+pub mod refill;
 pub mod relocalise;
 pub mod run_folder;
 pub mod simulate;

@@ -457,6 +457,9 @@ pub enum Closed {
     /// Neither a straight-walled vessel nor a bowl: the hull rises higher above its widest slice than
     /// a roof over a rim would ([`Profile::crown`] above [`MAX_BOWL_CROWN`]), as over a spheroid.
     RoundTop,
+    /// Neither a straight-walled vessel nor a bowl: a bowl's crown, but the hull does not flare from
+    /// its foot by [`MIN_BOWL_FLARE`] (an upturned bowl).
+    NoFlare,
     /// Another object stands on its top (see [`MAX_LEANER_OFFSET`]).
     Supports,
     /// Its hull reaches the top of the box it was searched in, so its top was never seen: a bottle
@@ -666,6 +669,10 @@ pub struct VesselTop {
     /// stays closed (see `reconstruct::retake_openings`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub opened_when_settled: Option<Shape>,
+    /// The given poses opened it, the settled poses closed it, and the hull carving had taken from
+    /// it was filled with surfels again ([`crate::refill`]).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub refilled: bool,
     #[serde(flatten)]
     pub top: Top,
 }
@@ -718,6 +725,7 @@ pub fn classify(
             voxels: voxels.len(),
             from_given_poses: None,
             opened_when_settled: None,
+            refilled: false,
             top,
         });
     }
@@ -787,10 +795,12 @@ fn vessel_shape(
     };
     if straight(0.1, MIN_ASPECT) || straight(HIDDEN_FOOT, MIN_HIDDEN_FOOT_ASPECT) {
         Ok(Shape::Straight)
-    } else if profile.crown() <= crown_limit && rim_radius >= MIN_BOWL_FLARE * foot_radius(r) {
-        Ok(Shape::Bowl)
-    } else {
+    } else if profile.crown() > crown_limit {
         Err(Closed::RoundTop)
+    } else if rim_radius < MIN_BOWL_FLARE * foot_radius(r) {
+        Err(Closed::NoFlare)
+    } else {
+        Ok(Shape::Bowl)
     }
 }
 

@@ -9,7 +9,7 @@
 //! points that project onto an object pixel in every training view that sees them. Surfels that start
 //! outside every object cost time and are pruned anyway, since the masked targets are black there.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -26,6 +26,7 @@ use crate::front_fill::{self, FrontFill};
 use crate::mask_agreement::MaskAgreement;
 use crate::openings::overhang::Overhangs;
 use crate::openings::{Baseline, Closed, Opening, Top, VesselTop};
+use crate::refill;
 use crate::support::{Support, SupportPrior};
 use crate::table_height::{self, MIN_TABLE_SHIFT_M, TableLevel};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
@@ -391,12 +392,15 @@ pub fn find_openings(
 
 /// The opening prior decided again from `settled` views (the training views with the settled pose
 /// corrections), given the decision from the given poses. An opening the given poses found is kept
-/// where the settled poses' hull closes it as leaning or narrow: errors destroy a rim under a roof more
-/// easily than they make one. A pose error blurs the rims, which the settled poses restore; boundary
-/// errors move the settled cameras instead, and can tip an upright bowl or wine glass over the lean
-/// limit. A round top is the exception: pose errors flatten a spheroid's dome into a bowl's crown far
-/// more often than they raise an open bowl's crown into a dome, so where either hull reads one the
-/// object stays closed (BENCHMARKS.md §8 counts both ways).
+/// where the settled poses' hull closes it as leaning, narrow or not flaring: errors destroy a rim
+/// under a roof more easily than they make one. A pose error blurs the rims, which the settled poses
+/// restore; boundary errors move the settled cameras instead, and can tip an upright bowl or wine
+/// glass over the lean limit or widen its hull's foot past the flare limit. A round top is the
+/// exception: pose errors flatten a spheroid's dome into a bowl's crown far more often than they
+/// raise an open bowl's crown into a dome, so where either hull reads one the object stays closed,
+/// and where the settled poses' does, what carving took from it is refilled ([`crate::refill`]).
+/// A hull the given poses read as not flaring (an upturned bowl) keeps the object closed as well
+/// (BENCHMARKS.md §8 counts both ways).
 fn retake_openings(
     given: Vec<Opening>,
     given_tops: Vec<VesselTop>,
@@ -416,7 +420,7 @@ fn retake_openings(
 /// The settled decision (`openings` in the order of the open `tops`, as
 /// [`crate::openings::classify`] gives them) with every object it closes but the given decision opened
 /// opened as the given one was (`top_of` its opening's report), unless it closes it as a round top,
-/// and every object it opens but the given decision read as a round top closed.
+/// and every object it opens but the given decision read as a round top or as not flaring closed.
 fn keep_given_openings<O>(
     given: Vec<O>,
     given_tops: &[VesselTop],
@@ -430,34 +434,32 @@ fn keep_given_openings<O>(
         .map(|t| t.object_id)
         .zip(given)
         .collect();
-    let given_round: HashSet<u16> = given_tops
+    let given_round: BTreeMap<u16, Closed> = given_tops
         .iter()
-        .filter(|t| {
-            matches!(
-                t.top,
-                Top::Closed {
-                    because: Closed::RoundTop
-                }
-            )
+        .filter_map(|t| match t.top {
+            Top::Closed {
+                because: because @ (Closed::RoundTop | Closed::NoFlare),
+            } => Some((t.object_id, because)),
+            _ => None,
         })
-        .map(|t| t.object_id)
         .collect();
     let mut settled_open = openings.into_iter();
     let mut out = (Vec::new(), Vec::new());
     for mut t in tops {
         match t.top {
             // Either pose set's round top closes the object: the given poses' dome, flattened by
-            // the settled cameras and eroded masks, can pass for a bowl's crown as well.
-            Top::Open { shape, .. } if given_round.contains(&t.object_id) => {
+            // the settled cameras and eroded masks, can pass for a bowl's crown as well. Where the
+            // given poses' hull does not flare, the given reading stands too.
+            Top::Open { shape, .. } if given_round.contains_key(&t.object_id) => {
                 settled_open.next();
                 t.top = Top::Closed {
-                    because: Closed::RoundTop,
+                    because: given_round[&t.object_id],
                 };
                 t.opened_when_settled = Some(shape);
             }
             Top::Open { .. } => out.0.extend(settled_open.next()),
             // A round top is the closed reading errors rarely make of an open vessel: they tip rims
-            // into leaning or narrow tops, and flatten domes into bowls.
+            // into leaning or narrow tops, blur a bowl's flare away, and flatten domes into bowls.
             Top::Closed { because } if because != Closed::RoundTop => {
                 if let Some(o) = given_open.remove(&t.object_id) {
                     t.top = top_of(&o);
@@ -586,6 +588,43 @@ fn carve(trainer: &mut Trainer<'_>, openings: &[Opening], overhangs: Overhangs) 
     trainer.adam.retain(&keep);
     // Carving runs right after densification, when the statistics are zero anyway.
     trainer.stats = trand_train::DensifyStats::new(trainer.surfels.len());
+}
+
+/// Adds [`refill::surfels`] for the `closed` openings to the trainer's, with zero optimiser state:
+/// hull samples of `views` drawn as for the initial surfels, with a seed of their own.
+fn refill_closed(
+    trainer: &mut Trainer<'_>,
+    views: &[TrainView],
+    closed: &[&Opening],
+    openings: &[Opening],
+    opts: &ReconstructOptions,
+) -> Result<()> {
+    if closed.is_empty() {
+        return Ok(());
+    }
+    // Salted ("refill" in ASCII) so the samples are not the initial surfels' own.
+    let cfg = InitConfig {
+        seed: opts.init.seed ^ 0x7265_6669_6c6c,
+        ..opts.init.clone()
+    };
+    let support = support_test(views, opts)?;
+    let hull = visual_hull_points(views, &cfg, initial_hull_points(opts), support.as_ref())?;
+    let mut rng = Pcg64::seed_from_u64(cfg.seed ^ 0x6875_6c6c);
+    let layout = (trainer.surfels.sh_degree, trainer.surfels.num_objects);
+    let added = refill::surfels(hull, closed, openings, views, &cfg, layout, &mut rng)?;
+    if added.is_empty() {
+        return Ok(());
+    }
+    trainer.surfels.append(&added);
+    trainer.adam.append_zeros(added.len());
+    // Like carving, refilling follows densification, when the statistics are zero anyway.
+    trainer.stats = trand_train::DensifyStats::new(trainer.surfels.len());
+    Ok(())
+}
+
+/// How many visual-hull samples [`initial_surfels`] starts from.
+fn initial_hull_points(opts: &ReconstructOptions) -> usize {
+    (opts.init.num_volume + 4 * opts.init.num_per_face) / 5
 }
 
 /// Slab samples carved by the masks (see the module docs).
@@ -717,9 +756,13 @@ pub fn initial_surfels(views: &[TrainView], opts: &ReconstructOptions) -> Result
     let deg = opts.train.sh_degree;
     match (opts.init_mode, opts.method.supervision()) {
         (InitMode::VisualHull, Supervision::ObjectAware) => {
-            let n = opts.init.num_volume + 4 * opts.init.num_per_face;
             let support = support_test(views, opts)?;
-            let pts = visual_hull_points(views, &opts.init, n / 5, support.as_ref())?;
+            let pts = visual_hull_points(
+                views,
+                &opts.init,
+                initial_hull_points(opts),
+                support.as_ref(),
+            )?;
             let mut rng = Pcg64::seed_from_u64(opts.init.seed ^ 0x6875_6c6c);
             Ok(surfels_from_points(pts, &opts.init, deg, k, &mut rng)?)
         }
@@ -964,7 +1007,11 @@ pub fn reconstruct_from(
             trainer.restore(adam, stats, rng, stack);
             trainer.poses = poses;
             if let Some(v) = settled_views(&views, &trainer.poses)? {
-                (openings, vessel_tops) = retake_openings(openings, vessel_tops, &v, opts)?;
+                let (given, given_tops) = (openings, vessel_tops);
+                (openings, vessel_tops) =
+                    retake_openings(given.clone(), given_tops.clone(), &v, opts)?;
+                // The checkpoint holds the surfels refilled already: only the report is marked.
+                refill::closed_openings(&given, &given_tops, &mut vessel_tops);
                 openings_retaken = true;
             }
             curve = c;
@@ -980,7 +1027,11 @@ pub fn reconstruct_from(
             if trainer.poses.settled.is_none() && trainer.cfg.pose.settled(it) {
                 trainer.poses.settle();
                 if let Some(v) = settled_views(&views, &trainer.poses)? {
-                    (openings, vessel_tops) = retake_openings(openings, vessel_tops, &v, opts)?;
+                    let (given, given_tops) = (openings, vessel_tops);
+                    (openings, vessel_tops) =
+                        retake_openings(given.clone(), given_tops.clone(), &v, opts)?;
+                    let closed = refill::closed_openings(&given, &given_tops, &mut vessel_tops);
+                    refill_closed(&mut trainer, &v, &closed, &openings, opts)?;
                     openings_retaken = true;
                 }
             }
@@ -1110,6 +1161,7 @@ mod tests {
             voxels: 1000,
             from_given_poses: None,
             opened_when_settled: None,
+            refilled: false,
             top: match rim_z {
                 Some(rim_z) => Top::Open {
                     shape: Shape::Bowl,
@@ -1196,6 +1248,27 @@ mod tests {
         ));
         assert_eq!(tops[0].opened_when_settled, Some(Shape::Bowl));
         assert_eq!(tops[1].opened_when_settled, None);
+    }
+
+    #[test]
+    fn where_the_pose_sets_disagree_on_the_flare_alone_the_given_reading_stands() {
+        // Object 1: a bowl the settled poses' hull no longer sees flare; object 2: a hull the given
+        // poses saw narrowing up, which the settled poses open.
+        let given_tops = [top(1, Some(0.01)), closed_as(2, None, Closed::NoFlare)];
+        let settled_tops = vec![closed_as(1, None, Closed::NoFlare), top(2, Some(0.2))];
+        let (openings, tops) =
+            keep_given_openings(vec![0.01], &given_tops, vec![0.2], settled_tops, |&z| {
+                top(0, Some(z)).top
+            });
+        assert_eq!(openings, vec![0.01]);
+        assert_eq!(tops[0].from_given_poses, Some(Closed::NoFlare));
+        assert!(matches!(
+            tops[1].top,
+            Top::Closed {
+                because: Closed::NoFlare
+            }
+        ));
+        assert_eq!(tops[1].opened_when_settled, Some(Shape::Bowl));
     }
 
     /// `level_table` on six views of a table `height` below z = 0: where one surfel ends up, the
