@@ -96,10 +96,10 @@ pub fn surfels(
 fn majority_channel(views: &[TrainView], p: glam::DVec3, num_objects: usize) -> Option<usize> {
     let mut count = vec![0usize; num_objects];
     for v in views {
-        if let Some(o) = v.pixel_of(p) {
-            if let Some(n) = count.get_mut(v.labels[o] as usize) {
-                *n += 1;
-            }
+        if let Some(o) = v.pixel_of(p)
+            && let Some(n) = count.get_mut(v.labels[o] as usize)
+        {
+            *n += 1;
         }
     }
     let c = (1..num_objects).max_by_key(|&c| (count[c], std::cmp::Reverse(c)))?;
