@@ -670,3 +670,27 @@ fn the_last_slices_below_the_rim_are_carved_as_wide_as_the_widest_of_them() {
     }
     assert!(carving.radius[rim - 5] < widest + 0.001);
 }
+
+#[test]
+fn a_mug_standing_off_centre_on_an_upturned_bowl_is_open_about_its_own_body() {
+    // An upturned bowl (a 5.6 cm rim on the table, its 2.8 cm foot 4 cm up) carrying a straight mug
+    // 1.4 cm off its centre: the mug's hull reaches down around the bowl, labelled with the mug
+    // where the ring's views see the mug in front of it.
+    let support = solid([0.0, 0.0], 0.0, 0.04, |h| {
+        0.028 + 0.028 * (1.0 - (h / 0.04).powi(2)).max(0.0).sqrt()
+    });
+    let mug = solid([-0.014, -0.004], 0.0405, 0.087, |_| 0.035);
+    let tops = decide(&[support, mug]);
+    assert!(
+        open_shape(&tops[0]).is_none(),
+        "upturned bowl: {:?}",
+        tops[0]
+    );
+    let (shape, rim_z, rim_radius) = open_shape(&tops[1]).expect("the mug is open");
+    assert_eq!(shape, Shape::Straight);
+    assert!((rim_z - 0.1275).abs() < 0.008, "rim at {rim_z}");
+    assert!(
+        (rim_radius - 0.035).abs() < 0.004,
+        "rim radius {rim_radius}"
+    );
+}
