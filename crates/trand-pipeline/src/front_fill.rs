@@ -326,25 +326,17 @@ mod tests {
     /// A view of the glass from `eye`, every pixel labelled with the glass.
     fn view(eye: DVec3) -> TrainView {
         let (w, h) = (64, 48);
-        TrainView {
-            name: "v".into(),
-            camera: Camera::look_at(
-                Intrinsics::centered(60.0, w as u32, h as u32),
-                eye,
-                DVec3::new(0.0, 0.0, 0.05),
-                DVec3::Z,
-            ),
-            width: w,
-            height: h,
-            rgb: vec![0.5; w * h * 3],
-            grey: vec![0.5; w * h],
-            mask: vec![],
-            labels: vec![1; w * h],
-            label_counts: vec![],
-            ids: vec![1; w * h],
-            given_ids: vec![1; w * h],
-            band: vec![],
-        }
+        let camera = Camera::look_at(
+            Intrinsics::centered(60.0, w as u32, h as u32),
+            eye,
+            DVec3::new(0.0, 0.0, 0.05),
+            DVec3::Z,
+        );
+        let mut v = TrainView::from_ids("v".into(), camera, (w, h), vec![1; w * h]);
+        v.rgb = vec![0.5; w * h * 3];
+        v.grey = vec![0.5; w * h];
+        v.labels = vec![1; w * h];
+        v
     }
 
     /// The camera depths where the centre pixel's ray enters and leaves the glass's hull.

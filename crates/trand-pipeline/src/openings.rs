@@ -677,6 +677,20 @@ pub struct VesselTop {
     pub top: Top,
 }
 
+impl VesselTop {
+    /// One object's decision as [`classify`] reads it from one hull, before any retake marks it.
+    pub fn new(object_id: u16, voxels: usize, top: Top) -> Self {
+        Self {
+            object_id,
+            voxels,
+            from_given_poses: None,
+            opened_when_settled: None,
+            refilled: false,
+            top,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "top", rename_all = "snake_case")]
 pub enum Top {
@@ -720,14 +734,7 @@ pub fn classify(
             }
             Err(because) => Top::Closed { because },
         };
-        report.push(VesselTop {
-            object_id: id,
-            voxels: voxels.len(),
-            from_given_poses: None,
-            opened_when_settled: None,
-            refilled: false,
-            top,
-        });
+        report.push(VesselTop::new(id, voxels.len(), top));
     }
     (openings, report)
 }

@@ -1156,21 +1156,15 @@ mod tests {
     }
 
     fn closed_as(id: u16, rim_z: Option<f64>, because: Closed) -> VesselTop {
-        VesselTop {
-            object_id: id,
-            voxels: 1000,
-            from_given_poses: None,
-            opened_when_settled: None,
-            refilled: false,
-            top: match rim_z {
-                Some(rim_z) => Top::Open {
-                    shape: Shape::Bowl,
-                    rim_z,
-                    rim_radius: 0.05,
-                },
-                None => Top::Closed { because },
+        let top = match rim_z {
+            Some(rim_z) => Top::Open {
+                shape: Shape::Bowl,
+                rim_z,
+                rim_radius: 0.05,
             },
-        }
+            None => Top::Closed { because },
+        };
+        VesselTop::new(id, 1000, top)
     }
 
     fn rim(t: &VesselTop) -> Option<f64> {

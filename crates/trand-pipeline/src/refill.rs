@@ -114,24 +114,18 @@ mod tests {
     use trand_core::{Camera, Intrinsics};
 
     fn vessel(id: u16, open: bool) -> VesselTop {
-        VesselTop {
-            object_id: id,
-            voxels: 1000,
-            from_given_poses: None,
-            opened_when_settled: None,
-            refilled: false,
-            top: if open {
-                Top::Open {
-                    shape: Shape::Bowl,
-                    rim_z: 0.05,
-                    rim_radius: 0.04,
-                }
-            } else {
-                Top::Closed {
-                    because: Closed::RoundTop,
-                }
-            },
-        }
+        let top = if open {
+            Top::Open {
+                shape: Shape::Bowl,
+                rim_z: 0.05,
+                rim_radius: 0.04,
+            }
+        } else {
+            Top::Closed {
+                because: Closed::RoundTop,
+            }
+        };
+        VesselTop::new(id, 1000, top)
     }
 
     #[test]
@@ -167,26 +161,15 @@ mod tests {
     /// A 32×24 view of the origin from `eye`, every pixel labelled `c`.
     fn view(eye: DVec3, c: u8) -> TrainView {
         let (w, h) = (32, 24);
-        let labels = vec![c; w * h];
-        TrainView {
-            name: "v".into(),
-            camera: Camera::look_at(
-                Intrinsics::centered(30.0, w as u32, h as u32),
-                eye,
-                DVec3::ZERO,
-                DVec3::Z,
-            ),
-            width: w,
-            height: h,
-            rgb: vec![0.5; w * h * 3],
-            grey: vec![0.5; w * h],
-            mask: vec![],
-            ids: labels.iter().map(|&l| l as u16).collect(),
-            given_ids: labels.iter().map(|&l| l as u16).collect(),
-            labels,
-            label_counts: vec![],
-            band: vec![],
-        }
+        let camera = Camera::look_at(
+            Intrinsics::centered(30.0, w as u32, h as u32),
+            eye,
+            DVec3::ZERO,
+            DVec3::Z,
+        );
+        let mut v = TrainView::from_ids("v".into(), camera, (w, h), vec![u16::from(c); w * h]);
+        v.labels = vec![c; w * h];
+        v
     }
 
     #[test]

@@ -56,6 +56,26 @@ pub struct TrainView {
 }
 
 impl TrainView {
+    /// A view of instance ids alone (`ids` row-major over `size` = (width, height), the given ids
+    /// the same) with no image, labels or band: what the mask-reading priors look at, and the base
+    /// a test builds a view on.
+    pub fn from_ids(name: String, camera: Camera, size: (usize, usize), ids: Vec<u16>) -> Self {
+        Self {
+            name,
+            camera,
+            width: size.0,
+            height: size.1,
+            rgb: Vec::new(),
+            grey: Vec::new(),
+            mask: Vec::new(),
+            labels: Vec::new(),
+            label_counts: Vec::new(),
+            given_ids: ids.clone(),
+            ids,
+            band: Vec::new(),
+        }
+    }
+
     /// [`pixel_index`] in this view's image. The mask-reading tests (visual hull, open-vessel and
     /// support priors) all look a point up this way.
     pub fn pixel_of(&self, p: glam::DVec3) -> Option<usize> {

@@ -119,20 +119,7 @@ fn views_from(cams: Vec<Camera>, solids: &[Solid]) -> Vec<TrainView> {
     cams.into_iter()
         .enumerate()
         .map(|(i, camera)| (i, camera, ids(&camera, solids)))
-        .map(|(i, camera, ids)| TrainView {
-            name: format!("{i}"),
-            camera,
-            width: 320,
-            height: 240,
-            rgb: Vec::new(),
-            grey: Vec::new(),
-            mask: Vec::new(),
-            labels: Vec::new(),
-            label_counts: Vec::new(),
-            given_ids: ids.clone(),
-            ids,
-            band: Vec::new(),
-        })
+        .map(|(i, camera, ids)| TrainView::from_ids(format!("{i}"), camera, (320, 240), ids))
         .collect()
 }
 

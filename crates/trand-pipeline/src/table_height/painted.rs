@@ -45,20 +45,9 @@ pub(crate) fn views_of_table(height: f64, paint: fn(f64, f64) -> f32) -> Vec<Tra
                     }
                 }
             }
-            TrainView {
-                name: format!("{k}"),
-                camera,
-                width: w,
-                height: h,
-                rgb: Vec::new(),
-                grey,
-                mask: Vec::new(),
-                labels: Vec::new(),
-                label_counts: Vec::new(),
-                ids: ids.clone(),
-                given_ids: ids,
-                band: Vec::new(),
-            }
+            let mut v = TrainView::from_ids(format!("{k}"), camera, (w, h), ids);
+            v.grey = grey;
+            v
         })
         .collect()
 }
