@@ -1108,7 +1108,7 @@ pub fn reconstruct_from(
 /// After training: the table's height seen through the (corrected) cameras ([`table_height`]).
 /// With refined poses, where its texture or its shading shows it at least [`MIN_TABLE_SHIFT_M`] off
 /// z = 0 ([`table_height::TableFit::reading`]), the frame is moved towards it by the reading's
-/// [`table_height::Reading::share`] of that height: cameras and surfels together, so no training
+/// [`table_height::TableFit::share`] of that height: cameras and surfels together, so no training
 /// image changes. The surfels under the table are dropped after the move ([`object_filter`]).
 /// Poses kept as given are the user's: measured only. Done once at the end, so that what training
 /// decided (the opening prior above all, whose voxel grid is fixed to the world) is decided as
@@ -1127,10 +1127,8 @@ fn level_table(
     let fit = table_height::measure(views, &cameras);
     let refined = refinement != trand_train::PoseRefinement::Fixed;
     let reading = fit.and_then(|f| f.reading());
-    let shift = match (fit, reading) {
-        (Some(f), Some(r)) if refined && f.height_m.abs() >= MIN_TABLE_SHIFT_M => {
-            r.share() * f.height_m
-        }
+    let shift = match fit {
+        Some(f) if refined && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.share() * f.height_m,
         _ => 0.0,
     };
     if shift != 0.0 {

@@ -18,7 +18,7 @@
 //! through its neighbours. Refraction and caustics are masked with the objects; shadows lie on the
 //! table and agree.
 //!
-//! **When the height is trusted.** Two kinds of curve are read, and one is refused:
+//! **When the height is trusted.** Three kinds of curve are read, and one is refused:
 //! - *Textured*: a sharp peak, the best score beating the worst by [`MIN_CONTRAST`] or more.
 //! - *Broad*: a plain table correlates through its shading and soft shadows almost as well at any
 //!   height (best minus worst 0.01–0.06), but the curve is one smooth hump whose top lies at the
@@ -28,6 +28,11 @@
 //!   such a curve lay 0.5 mm from the refined cameras' vertical bias on average, within 1 mm in 91 %
 //!   of them, 2.3 mm at worst. A plain table's height is trusted less than a texture's: a refined
 //!   frame is moved by [`BROAD_SHARE`] of it.
+//! - *Faint*: a peak whose contrast lies between the aliases' highest ([`MIN_FAINT_CONTRAST`]) and
+//!   [`MIN_CONTRAST`], and not a broad hump: a texture seen less sharply (0.34–0.40 on scenes drawn
+//!   by `trand synth`). The frame is moved by a share of its height that grows from 0 to 1 across
+//!   that band ([`faint_share`]): with a cut at [`MIN_CONTRAST`] a run whose contrast fell from 0.403
+//!   to 0.383 lost a 6.7 mm move and 3.9 points of depth (BENCHMARKS.md §8).
 //! - *Refused*: a texture finer than the cameras' remaining disagreement (wood rings 6–9 mm apart)
 //!   peaks at aliases several millimetres apart with contrast 0.06–0.31: the curve is a comb that a
 //!   parabola fits badly (0.10–0.42 of its variance). A flat curve, as a narrow rig's, is refused too.
@@ -58,6 +63,9 @@ pub const STEP_M: f64 = 0.0005;
 /// 0.06–0.31 and can peak at an alias up to 9 mm off; the checkered, striped and marble tables rise
 /// by 0.46–0.92 and their heights came within 0.1–0.8 mm of the truth (BENCHMARKS.md §8).
 pub const MIN_CONTRAST: f64 = 0.4;
+/// The highest contrast the aliasing wood rings reached (see [`MIN_CONTRAST`]): below it a peak is
+/// not trusted at all.
+pub const MIN_FAINT_CONTRAST: f64 = 0.31;
 /// Share of the sweep's variance a single parabola must explain for a low-contrast curve to count as
 /// a plain table's broad hump: 0.94–0.999 on plain tables, 0.10–0.42 on the aliasing wood rings.
 pub const MIN_HUMP: f64 = 0.9;
@@ -108,16 +116,41 @@ impl TableFit {
         self.interior && self.hump >= MIN_HUMP
     }
 
+    /// A peak inside the sweep above the aliases' contrast but under [`MIN_CONTRAST`].
+    pub fn faint(&self) -> bool {
+        self.interior && self.contrast > MIN_FAINT_CONTRAST
+    }
+
     /// How the height was read, `None` when it is not trusted (module docs).
     pub fn reading(&self) -> Option<Reading> {
         if self.textured() {
             Some(Reading::Textured)
         } else if self.broad() {
             Some(Reading::Broad)
+        } else if self.faint() {
+            Some(Reading::Faint)
         } else {
             None
         }
     }
+
+    /// The share of the measured height a refined frame is moved by: all of it for a texture,
+    /// [`BROAD_SHARE`] for a broad hump, [`faint_share`] for a faint peak, none when the height is
+    /// not trusted.
+    pub fn share(&self) -> f64 {
+        match self.reading() {
+            Some(Reading::Textured) => 1.0,
+            Some(Reading::Broad) => BROAD_SHARE,
+            Some(Reading::Faint) => faint_share(self.contrast),
+            None => 0.0,
+        }
+    }
+}
+
+/// A faint peak's share: linear in the contrast from 0 at [`MIN_FAINT_CONTRAST`] to 1 at
+/// [`MIN_CONTRAST`], so that a reading near either end moves the frame about as its neighbour does.
+pub fn faint_share(contrast: f64) -> f64 {
+    ((contrast - MIN_FAINT_CONTRAST) / (MIN_CONTRAST - MIN_FAINT_CONTRAST)).clamp(0.0, 1.0)
 }
 
 /// Which kind of sweep curve gave a trusted height (module docs).
@@ -128,17 +161,8 @@ pub enum Reading {
     Textured,
     /// One smooth hump: a plain table's shading and soft shadows.
     Broad,
-}
-
-impl Reading {
-    /// The share of the measured height a refined frame is moved by: all of it for a texture,
-    /// [`BROAD_SHARE`] for a broad hump.
-    pub fn share(self) -> f64 {
-        match self {
-            Reading::Textured => 1.0,
-            Reading::Broad => BROAD_SHARE,
-        }
-    }
+    /// A peak under the textured contrast, above the aliases'.
+    Faint,
 }
 
 /// What a run did about the table's height, as `run.json` reports it.
@@ -149,7 +173,7 @@ pub struct TableLevel {
     /// How the height was read when it was trusted (`textured` or `broad`, module docs).
     pub reading: Option<Reading>,
     /// The move (m): the table's height in the frame training used times the reading's
-    /// [`Reading::share`] when the fit was trusted and at least [`MIN_TABLE_SHIFT_M`] off z = 0,
+    /// [`TableFit::share`] when the fit was trusted and at least [`MIN_TABLE_SHIFT_M`] off z = 0,
     /// else 0. The surfels moved by minus this along z, the cameras with them. The heights
     /// `run.json` reports of the training's decisions (`vessel_tops`) are those before the move.
     pub shifted_m: f64,
@@ -366,6 +390,40 @@ mod tests {
             assert!(f.textured(), "{f:?}");
             assert!((f.height_m - height).abs() < 2e-4, "{height}: {f:?}");
         }
+    }
+
+    fn peak(contrast: f64, hump: f64) -> TableFit {
+        TableFit {
+            height_m: -0.004,
+            peak: 0.8,
+            contrast,
+            interior: true,
+            hump,
+        }
+    }
+
+    #[test]
+    fn the_share_grows_with_a_faint_peak_s_contrast_without_a_step_at_either_end() {
+        let share = |c: f64| peak(c, 0.0).share();
+        assert_eq!(peak(MIN_FAINT_CONTRAST, 0.0).reading(), None);
+        assert_eq!(peak(0.35, 0.0).reading(), Some(Reading::Faint));
+        assert_eq!(peak(MIN_CONTRAST, 0.0).reading(), Some(Reading::Textured));
+        assert!(share(MIN_FAINT_CONTRAST + 1e-9) < 1e-6);
+        assert!((share(MIN_CONTRAST - 1e-9) - 1.0).abs() < 1e-6);
+        let mid = 0.5 * (MIN_FAINT_CONTRAST + MIN_CONTRAST);
+        assert!((share(mid) - 0.5).abs() < 1e-9);
+        let grid: Vec<f64> = (0..=50)
+            .map(|k| share(0.3 + 0.002 * f64::from(k)))
+            .collect();
+        assert!(grid.windows(2).all(|w| w[1] >= w[0]), "{grid:?}");
+        // A broad hump keeps its own share; a curve that is neither is not trusted.
+        assert_eq!(peak(0.34, MIN_HUMP).share(), BROAD_SHARE);
+        assert_eq!(peak(0.2, 0.5).share(), 0.0);
+        let edge = TableFit {
+            interior: false,
+            ..peak(0.38, 0.0)
+        };
+        assert_eq!(edge.share(), 0.0, "a peak at the sweep's end");
     }
 
     #[test]
