@@ -118,7 +118,7 @@ impl TableFit {
 
     /// A peak inside the sweep above the aliases' contrast but under [`MIN_CONTRAST`].
     pub fn faint(&self) -> bool {
-        self.interior && self.contrast > MIN_FAINT_CONTRAST
+        self.interior && self.contrast > MIN_FAINT_CONTRAST && self.contrast < MIN_CONTRAST
     }
 
     /// How the height was read, `None` when it is not trusted (module docs).
@@ -170,7 +170,7 @@ pub enum Reading {
 pub struct TableLevel {
     /// The sweep through the refined cameras (`None` when no two views saw the table).
     pub fit: Option<TableFit>,
-    /// How the height was read when it was trusted (`textured` or `broad`, module docs).
+    /// How the height was read when it was trusted (`textured`, `broad` or `faint`, module docs).
     pub reading: Option<Reading>,
     /// The move (m): the table's height in the frame training used times the reading's
     /// [`TableFit::share`] when the fit was trusted and at least [`MIN_TABLE_SHIFT_M`] off z = 0,

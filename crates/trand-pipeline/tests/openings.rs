@@ -659,10 +659,9 @@ fn the_last_slices_below_the_rim_are_carved_as_wide_as_the_widest_of_them() {
 }
 
 #[test]
-fn a_mug_standing_off_centre_on_an_upturned_bowl_is_open_about_its_own_body() {
+fn a_mug_standing_off_centre_on_an_upturned_bowl_is_a_straight_open_vessel_at_its_own_rim() {
     // An upturned bowl (a 5.6 cm rim on the table, its 2.8 cm foot 4 cm up) carrying a straight mug
-    // 1.4 cm off its centre: the mug's hull reaches down around the bowl, labelled with the mug
-    // where the ring's views see the mug in front of it.
+    // (no handle) 1.4 cm off its centre.
     let support = solid([0.0, 0.0], 0.0, 0.04, |h| {
         0.028 + 0.028 * (1.0 - (h / 0.04).powi(2)).max(0.0).sqrt()
     });
