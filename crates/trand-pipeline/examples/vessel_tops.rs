@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release -p trand-pipeline --example vessel_tops -- SEQ...`
 
-use trand_pipeline::openings::{Profile, Top};
+use trand_pipeline::openings::{Profile, Top, support_under};
 use trand_pipeline::reconstruct::{
     ReconstructOptions, find_openings, openings_box, openings_hull, train_views,
 };
@@ -66,7 +66,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 } => format!("OPEN {shape:?} rim z {rim_z:.3} r {rim_radius:.3}"),
                 Top::Closed { because } => format!("closed {because:?}"),
             };
-            let shape = hull.get(&t.object_id).and_then(|v| Profile::seen_from(v, baseline)).map_or(
+            let shape = hull.get(&t.object_id).and_then(|v| Profile::standing_on(v, baseline, support_under(t.object_id, v, &hull))).map_or(
                 String::new(),
                 |p| {
                     let r = &p.radius;
@@ -89,11 +89,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     )
                 },
             );
-            println!("{arg} {:>2} {kind:<22} {decision} {shape}", t.object_id);
+            let support = hull
+                .get(&t.object_id)
+                .and_then(|v| support_under(t.object_id, v, &hull))
+                .map_or(String::new(), |z| format!(" | on a support up to z {z:.3}"));
+            println!(
+                "{arg} {:>2} {kind:<22} {decision} {shape}{support}",
+                t.object_id
+            );
             if std::env::var_os("PROFILE").is_some()
-                && let Some(p) = hull
-                    .get(&t.object_id)
-                    .and_then(|v| Profile::seen_from(v, baseline))
+                && let Some(p) = hull.get(&t.object_id).and_then(|v| {
+                    Profile::standing_on(v, baseline, support_under(t.object_id, v, &hull))
+                })
             {
                 let r: Vec<String> = p
                     .radius

@@ -117,6 +117,11 @@ pub const MAX_BOWL_CROWN: f64 = 1.22;
 /// A bowl flares: its rim is at least this many times wider than its foot (the lowest fifth of its
 /// height). An upturned bowl, a dome, narrows from the table up.
 pub const MIN_BOWL_FLARE: f64 = 1.1;
+/// Share of an object's footprint another object's voxels fill in a slice of what it stands on
+/// ([`support_under`]).
+const SUPPORT_FILL: f64 = 0.25;
+/// Least height (m) of an object's hull above the top of what it stands on ([`support_under`]).
+const MIN_BODY_M: f64 = 0.03;
 /// A hull starting this high above the table (m) stands on another object (see [`Profile::of`]).
 pub const RAISED_M: f64 = 0.01;
 /// Largest lean of the axis (horizontal drift of the slice centres per unit height) of an upright
@@ -234,6 +239,15 @@ impl Profile {
     /// read from the slices' fronts ([`narrow`]), and the footprint's depth, not seen, is not
     /// measured (elongation 1).
     pub fn seen_from(voxels: &[DVec3], baseline: Baseline) -> Option<Self> {
+        Self::standing_on(voxels, baseline, None)
+    }
+
+    /// [`Profile::seen_from`] for an object standing on a support whose top is at height `base`
+    /// (see [`support_under`]): seen from around it, its axis and lean are read from the slices above
+    /// the support only. Below, its hull wraps the support: where the views see the object in front
+    /// of what carries it, the voxels around the support take the object's label, and their centre
+    /// lies between the two.
+    pub fn standing_on(voxels: &[DVec3], baseline: Baseline, base: Option<f64>) -> Option<Self> {
         if voxels.len() < MIN_VOXELS {
             return None;
         }
@@ -245,12 +259,24 @@ impl Profile {
             let k = (((p.z - z0) / VOXEL_M).floor() as usize).min(slices - 1);
             by_slice[k].push(p.truncate());
         }
-        let height = (slices as f64 * VOXEL_M).max(VOXEL_M);
+        // The body the axis is read from: above the support, where there is one.
+        let first = base.filter(|_| baseline == Baseline::Wide).map_or(0, |b| {
+            (((b - z0) / VOXEL_M).max(0.0) as usize).min(slices - 1)
+        });
+        let body = &by_slice[first..];
+        let n = body.len();
+        let height = (n as f64 * VOXEL_M).max(VOXEL_M);
         // The foot (the lowest fifth, rounded up), the second and the middle fifth.
-        let fifth =
-            |f: usize| &by_slice[f * slices / 5..((f + 1) * slices / 5).max(f * slices / 5 + 1)];
-        let parts = [&by_slice[..slices.div_ceil(5)], fifth(1), fifth(2)];
+        let fifth = |f: usize| &body[f * n / 5..((f + 1) * n / 5).max(f * n / 5 + 1)];
+        let parts = [&body[..n.div_ceil(5)], fifth(1), fifth(2)];
         let (axis, lean) = match baseline {
+            // Just above the support the hull still mixes with its top: the body is read from
+            // its second and middle fifths.
+            Baseline::Wide if first > 0 => {
+                let axis = inscribed_centre(parts[1])?;
+                let middle = inscribed_centre(parts[2]).unwrap_or(axis);
+                (axis, (middle - axis).length() / (0.2 * height))
+            }
             Baseline::Wide => wide_axis(parts, height, z0)?,
             Baseline::Narrow { toward } => {
                 let centre = |slices| median_point(&narrow::slice_centres(slices, toward, VOXEL_M));
@@ -394,6 +420,54 @@ fn median_point(pts: &[DVec2]) -> Option<DVec2> {
         v[v.len() / 2]
     };
     Some(DVec2::new(med(|p| p.x), med(|p| p.y)))
+}
+
+/// Centre of the largest circle inside each slice's cross-section (its voxels farthest from
+/// any empty cell, to within a voxel, averaged), the median over `slices`.
+///
+/// Why not the median of the voxels: a mug's body above the foot carries its handle, and its hull
+/// carries more, a wedge where the views that see the handle beside the body widen their
+/// silhouettes, which pulls a median or a fitted circle a centimetre towards it. The hull is the
+/// intersection of the views' silhouette strips, each centred on the body where the handle does
+/// not widen it, so the inscribed circle stays on the body.
+fn inscribed_centre(slices: &[Vec<DVec2>]) -> Option<DVec2> {
+    let centres: Vec<DVec2> = slices.iter().filter_map(|s| slice_inscribed(s)).collect();
+    median_point(&centres)
+}
+
+/// [`inscribed_centre`] of one slice's voxel centres.
+fn slice_inscribed(pts: &[DVec2]) -> Option<DVec2> {
+    let cell = |p: &DVec2| {
+        [
+            (p.x / VOXEL_M).floor() as i64,
+            (p.y / VOXEL_M).floor() as i64,
+        ]
+    };
+    let cells: HashSet<[i64; 2]> = pts.iter().map(cell).collect();
+    let empty: HashSet<[i64; 2]> = cells
+        .iter()
+        .flat_map(|[x, y]| [[x + 1, *y], [x - 1, *y], [*x, y + 1], [*x, y - 1]])
+        .filter(|c| !cells.contains(c))
+        .collect();
+    let depth: Vec<([i64; 2], i64)> = cells
+        .iter()
+        .map(|c| {
+            let d = empty
+                .iter()
+                .map(|e| (e[0] - c[0]).pow(2) + (e[1] - c[1]).pow(2))
+                .min()
+                .unwrap_or(0);
+            (*c, d)
+        })
+        .collect();
+    let deepest = depth.iter().map(|(_, d)| *d).max()?;
+    let floor = ((deepest as f64).sqrt() - 1.0).max(0.0).powi(2);
+    let inner: Vec<DVec2> = depth
+        .iter()
+        .filter(|(_, d)| *d as f64 >= floor)
+        .map(|(c, _)| (DVec2::new(c[0] as f64, c[1] as f64) + 0.5) * VOXEL_M)
+        .collect();
+    Some(inner.iter().fold(DVec2::ZERO, |a, p| a + *p) / inner.len() as f64)
 }
 
 /// Lower quartile over [`SECTORS`] angular sectors of the largest distance from `axis` (empty
@@ -840,6 +914,49 @@ fn support_top(
         .reduce(f64::max)
 }
 
+/// The top of another object that object `id` (its hull `voxels`) stands on, if any. Read before
+/// the profile, from the voxels only: `id`'s footprint is the circle of its upper body (the
+/// [`sector_radius`] about the median of its voxels between half and four fifths of its height),
+/// and a support is another object whose voxels fill at least [`SUPPORT_FILL`] of that circle in
+/// some slice at least [`RAISED_M`] above `id`'s lowest voxel and [`MIN_BODY_M`] below its top,
+/// where `id`'s hull reaches down to the table (within [`RAISED_M`]) around its support, which
+/// the raised rule of [`wide_axis`] cannot see. Its highest such slice is
+/// the support's top. Label noise and a neighbour's flank fill far less of it.
+pub fn support_under(id: u16, voxels: &[DVec3], hull: &BTreeMap<u16, Vec<DVec3>>) -> Option<f64> {
+    let (low, high) = voxels
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p.z), hi.max(p.z))
+        });
+    // A hull that starts above the table is judged by the raised rule instead (see [`wide_axis`]).
+    if low > RAISED_M {
+        return None;
+    }
+    let upper: Vec<DVec2> = voxels
+        .iter()
+        .filter(|p| p.z >= low + 0.5 * (high - low) && p.z <= low + 0.8 * (high - low))
+        .map(|p| p.truncate())
+        .collect();
+    let centre = median_point(&upper)?;
+    let radius = sector_radius(&upper, centre);
+    let fill = SUPPORT_FILL * std::f64::consts::PI * (radius / VOXEL_M).powi(2);
+    hull.iter()
+        .filter(|(o, _)| **o != id)
+        .filter_map(|(_, vs)| {
+            let mut counts: BTreeMap<i64, usize> = BTreeMap::new();
+            for p in vs
+                .iter()
+                .filter(|p| (p.truncate() - centre).length() < radius)
+            {
+                *counts.entry((p.z / VOXEL_M).floor() as i64).or_default() += 1;
+            }
+            let (k, _) = counts.iter().rev().find(|(_, n)| **n as f64 >= fill)?;
+            let top = (*k + 1) as f64 * VOXEL_M;
+            (top + MIN_BODY_M <= high && top >= low + RAISED_M).then_some(top)
+        })
+        .reduce(f64::max)
+}
+
 /// Where another object's voxels inside a rim's circle lie, seen from above.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Placement {
@@ -928,7 +1045,8 @@ fn open_top(
     ceiling: f64,
     baseline: Baseline,
 ) -> Result<Opening, Closed> {
-    let profile = Profile::seen_from(voxels, baseline).ok_or(Closed::TooSmall)?;
+    let base = support_under(id, voxels, hull);
+    let profile = Profile::standing_on(voxels, baseline, base).ok_or(Closed::TooSmall)?;
     if profile.slice_top(profile.radius.len() - 1) > ceiling - VOXEL_M {
         return Err(Closed::Truncated);
     }

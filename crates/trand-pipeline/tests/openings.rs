@@ -1,12 +1,12 @@
 //! The opening prior on analytic solids: masks ray-cast from a ring of six views at the Blender
 //! sequences' elevation (41.5°), the labelled hull built from them, and each solid's decision.
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use trand_core::{Camera, Intrinsics};
 use trand_pipeline::TrainView;
 use trand_pipeline::openings::{
-    Baseline, Carving, Closed, LIP_WALL_M, Opening, Shape, Top, VOXEL_M, VesselTop, WALL_MARGIN_M,
-    classify, object_voxels, object_voxels_where,
+    Baseline, Carving, Closed, LIP_WALL_M, Opening, Profile, Shape, Top, VOXEL_M, VesselTop,
+    WALL_MARGIN_M, classify, object_voxels, object_voxels_where, support_under,
 };
 use trand_pipeline::support::{Support, SupportPrior};
 
@@ -564,7 +564,7 @@ fn cylinder_voxels(base: f64, foot_shift: f64, radius: impl Fn(usize) -> f64) ->
 
 #[test]
 fn a_few_stray_voxels_above_a_gap_are_not_the_top_of_the_profile() {
-    use trand_pipeline::openings::{Profile, VOXEL_M};
+    use trand_pipeline::openings::VOXEL_M;
     let mut voxels = cylinder_with_shifted_foot(0.0);
     let slices = Profile::of(&voxels).unwrap().radius.len();
     assert_eq!(slices, 40);
@@ -581,7 +581,7 @@ fn a_few_stray_voxels_above_a_gap_are_not_the_top_of_the_profile() {
 
 #[test]
 fn a_neck_beside_a_misread_axis_is_still_the_top_and_a_ridge_is_not() {
-    use trand_pipeline::openings::{Profile, VOXEL_M};
+    use trand_pipeline::openings::VOXEL_M;
     // A bottle: a 3 cm body to 5.6 cm, a 7 mm neck above, its foot 5 mm off (the profile's axis
     // is the foot's: too little to count as a lean).
     let bottle = cylinder_voxels(0.0, 0.005, |k| if k < 28 { 0.03 } else { 0.007 });
@@ -609,7 +609,7 @@ fn a_neck_beside_a_misread_axis_is_still_the_top_and_a_ridge_is_not() {
 
 #[test]
 fn a_raised_object_leaning_by_its_foot_only_is_upright_about_its_body() {
-    use trand_pipeline::openings::{MAX_LEAN, Profile};
+    use trand_pipeline::openings::MAX_LEAN;
     let raised = Profile::of(&cylinder_with_shifted_foot(0.05)).unwrap();
     assert!(raised.lean <= MAX_LEAN, "lean {}", raised.lean);
     assert!(
@@ -624,7 +624,7 @@ fn a_raised_object_leaning_by_its_foot_only_is_upright_about_its_body() {
 
 #[test]
 fn the_carving_is_centred_on_the_body_not_on_a_foot_that_is_off_the_axis() {
-    use trand_pipeline::openings::{Carving, MAX_LEAN, Profile};
+    use trand_pipeline::openings::{Carving, MAX_LEAN};
     // A foot 4 mm off (one eroded mask, a camera a little off): still upright, and the profile's
     // axis is the foot's.
     let voxels = cylinder_voxels(0.0, 0.004, |_| 0.04);
@@ -644,7 +644,7 @@ fn the_carving_is_centred_on_the_body_not_on_a_foot_that_is_off_the_axis() {
 
 #[test]
 fn the_last_slices_below_the_rim_are_carved_as_wide_as_the_widest_of_them() {
-    use trand_pipeline::openings::{Carving, Profile};
+    use trand_pipeline::openings::Carving;
     // The roof of a few views starts shallow: the top three slices narrow by 3 mm each.
     let voxels = cylinder_voxels(0.0, 0.0, |k| 0.04 - 0.003 * k.saturating_sub(36) as f64);
     let profile = Profile::of(&voxels).unwrap();
@@ -678,5 +678,59 @@ fn a_mug_standing_off_centre_on_an_upturned_bowl_is_a_straight_open_vessel_at_it
     assert!(
         (rim_radius - 0.035).abs() < 0.004,
         "rim radius {rim_radius}"
+    );
+}
+
+#[test]
+fn an_object_on_a_support_is_centred_on_its_body_not_on_its_handle_or_the_hull_around_the_support()
+{
+    // A 3 cm high block (the support) under a cylinder 4 cm in radius whose hull reaches down
+    // around the support, 1 cm off its centre, and which carries a 2.5 cm "handle" wedge on +x
+    // over its middle: the axis is the cylinder's, not the median's.
+    let v = trand_pipeline::openings::VOXEL_M;
+    let at = |i: i32, j: i32, k: i32| {
+        DVec3::new(
+            (i as f64 + 0.5) * v,
+            (j as f64 + 0.5) * v,
+            (k as f64 + 0.5) * v,
+        )
+    };
+    let (mut body, mut block) = (Vec::new(), Vec::new());
+    for k in 0..60 {
+        for i in -40i32..=40 {
+            for j in -40i32..=40 {
+                let p = at(i, j, k);
+                let r = p.x.hypot(p.y);
+                let support = p.truncate().distance(DVec2::new(0.01, 0.0)) <= 0.035;
+                if k < 15 && support {
+                    block.push(p);
+                } else if k < 15 {
+                    // The hull around the support, on one side only, labelled with the object.
+                    if r <= 0.045 && p.x > 0.0 {
+                        body.push(p);
+                    }
+                } else if r <= 0.04
+                    || (k > 25 && k < 50 && p.x > 0.0 && p.x < 0.065 && p.y.abs() < 0.02)
+                {
+                    body.push(p);
+                }
+            }
+        }
+    }
+    let mut hull = std::collections::BTreeMap::new();
+    hull.insert(1u16, block);
+    hull.insert(2u16, body.clone());
+    let base = support_under(2, &body, &hull).expect("the block carries the cylinder");
+    assert!((base - 0.03).abs() < 0.0025, "support top {base}");
+    let p = Profile::standing_on(&body, Baseline::Wide, Some(base)).unwrap();
+    let axis = DVec2::from_array(p.axis);
+    assert!(axis.length() < 0.0015, "axis {axis:?}");
+    assert!(p.lean < 0.05, "lean {}", p.lean);
+    // Read without the support, the foot around the block and the handle pull the axis off.
+    let plain = DVec2::from_array(Profile::of(&body).unwrap().axis);
+    assert!(plain.length() > 0.004, "plain axis {plain:?}");
+    assert!(
+        support_under(1, &hull[&1], &hull).is_none(),
+        "nothing carries the block"
     );
 }
