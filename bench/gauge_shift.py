@@ -22,7 +22,7 @@ import argparse
 
 import numpy as np
 
-from shared_shift import cameras, object_centres, rotation
+from shared_shift import cameras, meeting_shift, object_centres
 
 
 def log_rotation(R):
@@ -54,22 +54,6 @@ def prior_gauge(xi, centres, rho):
     return np.concatenate([g_w, b_d / len(xi) - np.cross(g_w, c0)])
 
 
-def meeting_shift(xi, given, exact, frames, points):
-    """The least-squares shift with which cameras corrected by xi see the points (shared_shift.py)."""
-    A, b = np.zeros((3, 3)), np.zeros(3)
-    for x, f in zip(xi, frames):
-        (Rg, tg, _), (Re, te, _) = given[f], exact[f]
-        Rc, tc = Rg @ rotation(x[:3]), Rg @ x[3:] + tg
-        centre = -Re.T @ te
-        for X in points:
-            e = Re.T @ (Rc @ X + tc - (Re @ X + te))
-            u = (X - centre) / np.linalg.norm(X - centre)
-            P = np.eye(3) - np.outer(u, u)
-            A += P
-            b += P @ e
-    return -np.linalg.solve(A, b)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("copy")
@@ -90,7 +74,8 @@ def main():
     points = object_centres(a.seq)
     rho = a.mm / 1000.0 / np.radians(a.deg)
     for name, g in [("given", None), ("mean", -xi.mean(axis=0)), ("prior", prior_gauge(xi, centres, rho))]:
-        s = meeting_shift(np.zeros_like(xi) if g is None else xi + g, given, exact, frames, points)
+        xs = np.zeros_like(xi) if g is None else xi + g
+        s = meeting_shift({f: (x[:3], x[3:]) for f, x in zip(frames, xs)}, given, exact, points)
         print(f"{name:6s} {1000 * np.linalg.norm(s):5.2f} mm  [{', '.join(f'{1000 * v:5.2f}' for v in s)}]")
 
 

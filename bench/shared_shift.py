@@ -48,23 +48,19 @@ def object_centres(seq):
     return [R.T @ (np.array(o["cam_t_m2c"], float) / 1000.0 - t) for o in gt[str(k)]]
 
 
-def shared_shift(run, copy, seq, given_only=False):
-    """The least-squares shift s with which the corrected training cameras see every object centre
-    (the given ones, uncorrected, with `given_only`)."""
-    r = json.load(open(f"{run}/run.json"))
-    given = cameras(f"{copy}/train_0/scene_camera.json")
-    exact = cameras(f"{seq}/train_0/scene_camera.json")
+def meeting_shift(corrections, given, exact, points):
+    """The least-squares shift s with which cameras see the points: `corrections` maps each frame to
+    its (omega, delta) (world frame, radians and metres) applied to its `given` camera; `exact` holds
+    the true ones."""
     A, b = np.zeros((3, 3)), np.zeros(3)
-    for v in r["pose_refinement"]["views"]:
-        f = int(v["view"].split("/")[-1])
+    for f, (w, d) in corrections.items():
         Rg, tg, _ = given[f]
         Re, te, _ = exact[f]
         # Corrected camera: x_c = R_g (exp([w]x) x + d) + t_g (d includes the table-height move).
-        w, d = (np.zeros(3), np.zeros(3)) if given_only else (v["omega_rad"], v["delta_m"])
         Rc = Rg @ rotation(np.array(w))
         tc = Rg @ np.array(d) + tg
         centre = -Re.T @ te
-        for X in object_centres(seq):
+        for X in points:
             # The point the corrected camera sees where the exact one sees X, across the ray.
             e = Re.T @ (Rc @ X + tc - (Re @ X + te))
             u = X - centre
@@ -73,6 +69,19 @@ def shared_shift(run, copy, seq, given_only=False):
             A += P
             b += P @ e
     return -np.linalg.solve(A, b)
+
+
+def shared_shift(run, copy, seq, given_only=False):
+    """The least-squares shift s with which the corrected training cameras see every object centre
+    (the given ones, uncorrected, with `given_only`)."""
+    r = json.load(open(f"{run}/run.json"))
+    corrections = {}
+    for v in r["pose_refinement"]["views"]:
+        f = int(v["view"].split("/")[-1])
+        corrections[f] = (np.zeros(3), np.zeros(3)) if given_only else (v["omega_rad"], v["delta_m"])
+    given = cameras(f"{copy}/train_0/scene_camera.json")
+    exact = cameras(f"{seq}/train_0/scene_camera.json")
+    return meeting_shift(corrections, given, exact, object_centres(seq))
 
 
 def within(run, seq, shift, trand, tmp, tag):
