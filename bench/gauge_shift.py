@@ -47,7 +47,8 @@ def prior_gauge(xi, centres, rho):
         w, d = x[:3], x[3:] + np.cross(x[:3], c0)
         c = c - c0
         r = d + np.cross(w, c)
-        P -= cross_matrix(c) @ cross_matrix(c)
+        cx = cross_matrix(c)
+        P -= cx @ cx
         b_w -= rho * rho * w + np.cross(c, r)
         b_d -= r
     g_w = np.linalg.solve(P, b_w)
