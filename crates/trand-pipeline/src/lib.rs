@@ -34,6 +34,7 @@ pub mod run_folder;
 pub mod simulate;
 pub mod support;
 mod surfel_ops;
+pub mod table_align;
 pub mod table_height;
 pub mod targets;
 #[cfg(test)]

@@ -28,6 +28,7 @@ use crate::openings::overhang::Overhangs;
 use crate::openings::{Baseline, Closed, Opening, Top, VesselTop};
 use crate::refill;
 use crate::support::{Support, SupportPrior};
+use crate::table_align::{self, TableAlign, TableAlignment};
 use crate::table_height::{self, MIN_TABLE_SHIFT_M, TableLevel};
 use crate::targets::{self, CoarseViews, Supervision, TrainView};
 use crate::trainer::{StepReport, Trainer, camera_extent};
@@ -98,6 +99,9 @@ pub struct ReconstructOptions {
     pub support: SupportPrior,
     /// Whether holes in an object's front are filled after training (see [`crate::front_fill`]).
     pub front_fill: FrontFill,
+    /// Whether the training cameras are first aligned on the table's texture (see
+    /// [`crate::table_align`]).
+    pub table_align: TableAlign,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -115,6 +119,7 @@ impl Default for ReconstructOptions {
             identity: Identity::Auto,
             support: SupportPrior::Auto,
             front_fill: FrontFill::HullFront,
+            table_align: TableAlign::Texture,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -209,6 +214,8 @@ pub struct Reconstruction {
     /// The table's height seen through the cameras after training, and how far the frame was moved
     /// for it (never with the poses fixed).
     pub table: TableLevel,
+    /// The training cameras' alignment on the table before training, `None` where it was not tried.
+    pub table_alignment: Option<TableAlignment>,
 }
 
 impl Reconstruction {
@@ -931,11 +938,16 @@ pub fn reconstruct_from(
     opts.validate()?;
     let t0 = Instant::now();
     let TrainViews {
-        views,
+        mut views,
         coarse,
         channels,
         identity,
     } = train_views(seq, opts)?;
+    let support_applied = opts.init_mode == InitMode::VisualHull
+        && opts.method.supervision() == Supervision::ObjectAware
+        && support_test(&views, opts)?.is_some();
+    let mut coarse = coarse;
+    let table_alignment = align_on_table(&mut views, &mut coarse, opts, support_applied);
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
     let mask_agreement = match opts.openings {
         OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => Some(
@@ -980,9 +992,6 @@ pub fn reconstruct_from(
             )
         }
     };
-    let support_applied = opts.init_mode == InitMode::VisualHull
-        && opts.method.supervision() == Supervision::ObjectAware
-        && support_test(&views, opts)?.is_some();
     // A narrow baseline (the support prior's case) leaves the depth to parallax of a few pixels
     // between the views, which images reduced 2-4x do not resolve: such runs train at the training
     // resolution throughout (the real keypose capture's keypoints: within 0.77 cm, against 1.15 cm
@@ -1102,7 +1111,34 @@ pub fn reconstruct_from(
         pose_refinement,
         poses,
         table,
+        table_alignment,
     })
+}
+
+/// The training views' cameras aligned on the table ([`table_align`]) where `opts` ask for it, the
+/// poses are refined and the support prior (a narrow baseline, whose poses stay as given) does not
+/// apply; every level's views get the same correction. `None` where it was not tried.
+fn align_on_table(
+    views: &mut [TrainView],
+    coarse: &mut [CoarseViews],
+    opts: &ReconstructOptions,
+    support_applied: bool,
+) -> Option<TableAlignment> {
+    let refined = opts.train.pose != trand_train::PoseRefinement::Fixed;
+    if opts.table_align == TableAlign::Off || !refined || support_applied {
+        return None;
+    }
+    let alignment = table_align::align(views)?;
+    if alignment.kept {
+        let levels =
+            std::iter::once(&mut *views).chain(coarse.iter_mut().map(|c| &mut c.views[..]));
+        for level in levels {
+            for (i, v) in level.iter_mut().enumerate() {
+                v.camera = alignment.camera(i, &v.camera);
+            }
+        }
+    }
+    Some(alignment)
 }
 
 /// After training: the table's height seen through the (corrected) cameras ([`table_height`]).

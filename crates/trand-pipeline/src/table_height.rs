@@ -260,7 +260,7 @@ fn sample(view: &TrainView, camera: Camera) -> Sampled<'_> {
 }
 
 /// Object pixels of `ids` grown by `r` pixels (a square window, two separable passes).
-fn widen(ids: &[u16], (w, h): (usize, usize), r: usize) -> Vec<bool> {
+pub(crate) fn widen(ids: &[u16], (w, h): (usize, usize), r: usize) -> Vec<bool> {
     let mut rows = vec![false; w * h];
     for y in 0..h {
         for x in 0..w {

@@ -248,7 +248,7 @@ impl PoseCorrections {
 }
 
 /// `cam` seeing the world moved by `x = (ω, δ)` (module docs).
-fn corrected(x: [f64; 6], cam: &Camera) -> Camera {
+pub fn corrected(x: [f64; 6], cam: &Camera) -> Camera {
     if x == [0.0; 6] {
         return *cam;
     }

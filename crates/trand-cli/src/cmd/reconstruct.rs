@@ -24,6 +24,7 @@ use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::front_fill::FrontFill;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
+use trand_pipeline::table_align::TableAlign;
 
 use super::{canonical, name_of};
 use trand_pipeline::{InitMode, Method, PipelineError, ReconstructOptions};
@@ -74,6 +75,10 @@ pub struct Args {
     /// to its back wall after training, a surfel is put at the visual hull's front) or off.
     #[arg(long, value_enum)]
     pub front_fill: Option<FrontFill>,
+    /// Training cameras: texture (default: first aligned on the table's texture where it shows one,
+    /// with the poses refined and the views spread; run.json `table_alignment`) or off.
+    #[arg(long, value_enum)]
+    pub table_align: Option<TableAlign>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -127,6 +132,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(f) = a.front_fill {
         o.front_fill = f;
+    }
+    if let Some(t) = a.table_align {
+        o.table_align = t;
     }
     if let Some(p) = a.support {
         o.support = p;
@@ -365,6 +373,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         )
         .detail("identity", &rec.identity)
         .detail("table_height", rec.table)
+        .detail(
+            "table_alignment",
+            serde_json::json!({ "mode": opts.table_align, "found": rec.table_alignment }),
+        )
         .detail(
             "front_fill",
             serde_json::json!({ "mode": opts.front_fill, "surfels_added": rec.front_fill_added }),
