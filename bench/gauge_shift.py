@@ -22,15 +22,7 @@ import argparse
 
 import numpy as np
 
-from shared_shift import cameras, meeting_shift, object_centres
-
-
-def log_rotation(R):
-    """The rotation vector of R (inverse Rodrigues)."""
-    th = np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
-    if th < 1e-12:
-        return np.zeros(3)
-    return th / (2.0 * np.sin(th)) * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+from shared_shift import cameras, log_rotation, meeting_shift, object_centres
 
 
 def cross_matrix(c):

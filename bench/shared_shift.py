@@ -33,6 +33,14 @@ def rotation(w):
     return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
 
 
+def log_rotation(R):
+    """The rotation vector of R (inverse Rodrigues)."""
+    th = np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))
+    if th < 1e-12:
+        return np.zeros(3)
+    return th / (2.0 * np.sin(th)) * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+
+
 def cameras(path):
     out = {}
     for k, c in json.load(open(path)).items():
@@ -75,10 +83,21 @@ def shared_shift(run, copy, seq, given_only=False):
     """The least-squares shift s with which the corrected training cameras see every object centre
     (the given ones, uncorrected, with `given_only`)."""
     r = json.load(open(f"{run}/run.json"))
+    found = (r.get("details", r).get("table_alignment") or {}).get("found") or {}
+    aligned = found.get("corrections") if found.get("kept") else None
     corrections = {}
-    for v in r["pose_refinement"]["views"]:
+    for i, v in enumerate(r["pose_refinement"]["views"]):
         f = int(v["view"].split("/")[-1])
-        corrections[f] = (np.zeros(3), np.zeros(3)) if given_only else (v["omega_rad"], v["delta_m"])
+        if given_only:
+            corrections[f] = (np.zeros(3), np.zeros(3))
+        elif aligned is None:
+            corrections[f] = (v["omega_rad"], v["delta_m"])
+        else:
+            # Training refined the cameras aligned on the table: compose the two corrections,
+            # exp([W]x) = exp([a_w]x) exp([w]x), D = exp([a_w]x) d + a_d.
+            a_w, a_d = np.array(aligned[i][:3]), np.array(aligned[i][3:])
+            turn = rotation(a_w) @ rotation(np.array(v["omega_rad"]))
+            corrections[f] = (log_rotation(turn), rotation(a_w) @ np.array(v["delta_m"]) + a_d)
     given = cameras(f"{copy}/train_0/scene_camera.json")
     exact = cameras(f"{seq}/train_0/scene_camera.json")
     return meeting_shift(corrections, given, exact, object_centres(seq))

@@ -67,6 +67,13 @@ fn a_textured_table_brings_the_views_back_into_agreement_on_the_plane() {
 }
 
 #[test]
+fn cameras_that_already_agree_on_the_table_are_kept_as_given() {
+    let views = views_of_table(0.0, speckle);
+    let a = align(&views).expect("the views see the table");
+    assert!(!a.kept, "{a:?}");
+}
+
+#[test]
 fn a_table_without_texture_keeps_the_given_cameras() {
     let mut views = views_of_table(0.0, |x, y| (0.5 + 0.4 * x - 0.2 * y) as f32);
     perturbed(&mut views);
