@@ -391,8 +391,9 @@ fn solve6(mut h: [[f64; 6]; 6], mut b: [f64; 6]) -> Option<[f64; 6]> {
         b.swap(col, pivot);
         for row in col + 1..6 {
             let f = h[row][col] / h[col][col];
-            for c in col..6 {
-                h[row][c] -= f * h[col][c];
+            let top = h[col];
+            for (dst, src) in h[row][col..].iter_mut().zip(&top[col..]) {
+                *dst -= f * src;
             }
             b[row] -= f * b[col];
         }
