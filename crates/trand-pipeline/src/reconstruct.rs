@@ -939,14 +939,13 @@ pub fn reconstruct_from(
     let t0 = Instant::now();
     let TrainViews {
         mut views,
-        coarse,
+        mut coarse,
         channels,
         identity,
     } = train_views(seq, opts)?;
     let support_applied = opts.init_mode == InitMode::VisualHull
         && opts.method.supervision() == Supervision::ObjectAware
         && support_test(&views, opts)?.is_some();
-    let mut coarse = coarse;
     let table_alignment = align_on_table(&mut views, &mut coarse, opts, support_applied);
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
     let mask_agreement = match opts.openings {

@@ -37,7 +37,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 use serde::Serialize;
 use trand_core::Camera;
-use trand_train::pose::corrected;
+use trand_train::pose::{corrected, rotation};
 
 use crate::table_height::{self, MASK_MARGIN_SHARE, TableFit, widen};
 use crate::targets::TrainView;
@@ -265,11 +265,7 @@ fn gauss_newton_step(
     target: &[Option<f64>],
 ) -> Option<[f64; 6]> {
     let r_given = given.rotation();
-    let omega = DVec3::from_slice(&xi[..3]);
-    let turn = match omega.try_normalize() {
-        Some(axis) => DMat3::from_axis_angle(axis, omega.length()),
-        None => DMat3::IDENTITY,
-    };
+    let turn = rotation(DVec3::from_slice(&xi[..3]));
     let k = camera.intrinsics;
     // (value, target, jacobian) per sample.
     let mut samples: Vec<(f64, f64, [f64; 6])> = Vec::new();

@@ -261,7 +261,7 @@ pub fn corrected(x: [f64; 6], cam: &Camera) -> Camera {
 }
 
 /// `exp([ω]×)`.
-fn rotation(w: DVec3) -> DMat3 {
+pub fn rotation(w: DVec3) -> DMat3 {
     match w.try_normalize() {
         Some(axis) => DMat3::from_axis_angle(axis, w.length()),
         None => DMat3::IDENTITY,
