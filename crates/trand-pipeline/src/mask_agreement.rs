@@ -5,8 +5,9 @@
 //! through any object pixel of one view, even at the mask's edge, passes through it. A segmenter's
 //! boundary a few pixels too wide, or a camera a fraction of a degree off, leaves edge pixels whose
 //! rays pass beside that hull; a mask too tight does the same to the other views' edges. The share
-//! of such edge pixels tells inputs a segmenter gave from exact ones without any ground truth, and
-//! decides the priors that only pay with imperfect masks (see [`crate::openings::overhang`]).
+//! of such edge pixels tells inputs a segmenter gave from exact ones without any ground truth;
+//! `run.json` reports it, and with `overhangs = "when-masks-disagree"` it decides the overhang rule
+//! (see [`crate::openings::overhang`]).
 //!
 //! Each view's edge pixels (object pixels, as given, with a background 4-neighbour) are tested: the
 //! ray through the pixel's centre is marched through the hull's box in steps of [`STEP_M`], a step

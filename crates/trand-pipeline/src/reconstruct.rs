@@ -24,7 +24,7 @@ use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::front_fill::{self, FrontFill};
 use crate::mask_agreement::MaskAgreement;
-use crate::openings::overhang::Overhangs;
+use crate::openings::overhang::{OverhangRule, Overhangs};
 use crate::openings::{Baseline, Closed, Opening, Top, VesselTop};
 use crate::refill;
 use crate::support::{Support, SupportPrior};
@@ -102,6 +102,9 @@ pub struct ReconstructOptions {
     /// Whether the training cameras are first aligned on the table's texture (see
     /// [`crate::table_align`]).
     pub table_align: TableAlign,
+    /// When surfels overhanging an opening's lip are carved with it (see
+    /// [`crate::openings::overhang`]).
+    pub overhangs: OverhangRule,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -120,6 +123,7 @@ impl Default for ReconstructOptions {
             support: SupportPrior::Auto,
             front_fill: FrontFill::HullFront,
             table_align: TableAlign::Texture,
+            overhangs: OverhangRule::Carve,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -954,9 +958,10 @@ pub fn reconstruct_from(
         ),
         _ => None,
     };
+    // No opening prior (or no object-aware supervision): nothing is carved, overhangs neither.
     let overhangs = match &mask_agreement {
-        Some(m) if m.disagree() => Overhangs::Carved,
-        _ => Overhangs::Kept,
+        Some(m) => opts.overhangs.decide(m.disagree()),
+        None => Overhangs::Kept,
     };
     let mut cfg = opts.train.clone();
     if opts.method != Method::Trand {

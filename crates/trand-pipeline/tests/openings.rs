@@ -449,6 +449,20 @@ fn exact_masks_agree_and_masks_two_pixels_too_wide_in_half_the_views_do_not() {
 }
 
 #[test]
+fn the_overhang_rules_carve_always_only_for_disagreeing_masks_or_never() {
+    use trand_pipeline::openings::overhang::{OverhangRule, Overhangs};
+    let carved = |r: OverhangRule| [false, true].map(|disagree| r.decide(disagree) == Overhangs::Carved);
+    assert_eq!(carved(OverhangRule::Carve), [true, true]);
+    assert_eq!(carved(OverhangRule::WhenMasksDisagree), [false, true]);
+    assert_eq!(carved(OverhangRule::Keep), [false, false]);
+    assert_eq!(
+        trand_pipeline::ReconstructOptions::default().overhangs,
+        OverhangRule::Carve,
+        "the default carves with agreeing masks too (BENCHMARKS.md §8)"
+    );
+}
+
+#[test]
 fn a_stacked_vessel_is_carved_above_its_support_not_into_it() {
     // An upturned tumbler (top at 9 cm) carrying an upright one: the upper one's hull reaches down
     // into the support as a cone, but its carving starts above the support's top.

@@ -134,11 +134,12 @@ impl Scene {
             "scene_scale": scale_json(&scale),
             "object_channels": rec.channels,
             "vessel_tops": rec.vessel_tops,
-            "mask_agreement": { "measured": rec.mask_agreement, "overhangs": rec.overhangs },
+            "mask_agreement": { "measured": rec.mask_agreement, "rule": opts.overhangs, "overhangs": rec.overhangs },
             "identity": rec.identity,
             "table_height": rec.table,
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
             "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },
+            "table_alignment": { "mode": opts.table_align, "found": rec.table_alignment },
             "timings": {
                 "preprocess_s": rec.preprocess_s,
                 "optimise_s": rec.optimise_s,

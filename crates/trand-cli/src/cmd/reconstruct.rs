@@ -369,7 +369,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .detail("vessel_tops", &rec.vessel_tops)
         .detail(
             "mask_agreement",
-            serde_json::json!({ "measured": rec.mask_agreement, "overhangs": rec.overhangs }),
+            serde_json::json!({ "measured": rec.mask_agreement, "rule": opts.overhangs, "overhangs": rec.overhangs }),
         )
         .detail("identity", &rec.identity)
         .detail("table_height", rec.table)

@@ -6,22 +6,49 @@
 //! for object a few pixels above it, and a flat disc on the rim that reaches out that far reaches
 //! as far in). Seen over the near rim from another view it is a shelf in front of the inside
 //! (seq_101's tumbler with boundary errors: six times as many surfels in the top 4 mm under its
-//! rim, too-near pixels inside its outline 1.4 → 5.2 %). So, when the masks disagree
-//! ([`crate::mask_agreement`]), a surfel in the lip band whose disc reaches, at [`OVERHANG_SIGMA`]
-//! σ horizontally towards the axis, into the carving is carved too ([`Overhangs::Carved`]).
+//! rim, too-near pixels inside its outline 1.4 → 5.2 %). So a surfel in the lip band whose disc
+//! reaches, at [`OVERHANG_SIGMA`] σ horizontally towards the axis, into the carving is carved too
+//! ([`Overhangs::Carved`]).
 //!
-//! With exact masks the rule is off: a thin rim is made of the same kind of surfels (the stemmed
-//! glasses of the containers scenes lose up to 3.7 points when it is on), and there is no shelf to
-//! remove (BENCHMARKS.md §8, §10).
+//! [`OverhangRule`] says when. The rule was first switched on only where the masks disagree
+//! ([`crate::mask_agreement`]): a thin rim is made of the same kind of surfels, and with exact masks
+//! the stemmed glasses lost by it. With the front fill, the thin lip and the table's height, carving
+//! with exact masks gains too, and so does carving with cameras aligned on the table, whose masks
+//! then agree (BENCHMARKS.md §8): it is on for every run by default.
 
 use glam::{DVec2, DVec3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{LIP_BAND_M, Opening};
 
 /// How many σ of a surfel's disc count as its reach: a 2DGS disc at 2σ still has e^-2 of its
 /// opacity.
 pub const OVERHANG_SIGMA: f64 = 2.0;
+
+/// When the overhang test of [`Opening::overhangs`] carves ([`ReconstructOptions`]'s `overhangs`).
+///
+/// [`ReconstructOptions`]: crate::reconstruct::ReconstructOptions
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OverhangRule {
+    /// Always.
+    Carve,
+    /// Only where the training masks disagree with one another ([`crate::mask_agreement`]).
+    WhenMasksDisagree,
+    /// Never: only surfel centres are tested.
+    Keep,
+}
+
+impl OverhangRule {
+    /// What the rule decides for training masks that `disagree` with one another or not.
+    pub fn decide(self, disagree: bool) -> Overhangs {
+        match self {
+            OverhangRule::Carve => Overhangs::Carved,
+            OverhangRule::WhenMasksDisagree if disagree => Overhangs::Carved,
+            OverhangRule::WhenMasksDisagree | OverhangRule::Keep => Overhangs::Kept,
+        }
+    }
+}
 
 /// Whether surfels whose disc overhangs an opening's lip are carved with it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
