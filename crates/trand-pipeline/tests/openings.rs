@@ -451,7 +451,8 @@ fn exact_masks_agree_and_masks_two_pixels_too_wide_in_half_the_views_do_not() {
 #[test]
 fn the_overhang_rules_carve_always_only_for_disagreeing_masks_or_never() {
     use trand_pipeline::openings::overhang::{OverhangRule, Overhangs};
-    let carved = |r: OverhangRule| [false, true].map(|disagree| r.decide(disagree) == Overhangs::Carved);
+    let carved =
+        |r: OverhangRule| [false, true].map(|disagree| r.decide(disagree) == Overhangs::Carved);
     assert_eq!(carved(OverhangRule::Carve), [true, true]);
     assert_eq!(carved(OverhangRule::WhenMasksDisagree), [false, true]);
     assert_eq!(carved(OverhangRule::Keep), [false, false]);
