@@ -79,9 +79,9 @@ def meeting_shift(corrections, given, exact, points):
     return -np.linalg.solve(A, b)
 
 
-def shared_shift(run, copy, seq, given_only=False):
-    """The least-squares shift s with which the corrected training cameras see every object centre
-    (the given ones, uncorrected, with `given_only`)."""
+def corrections_of(run, given_only=False):
+    """Each training frame's correction (omega, delta) of its given camera in `run`: the table
+    alignment, where it was kept, composed with the refinement (zero with `given_only`)."""
     r = json.load(open(f"{run}/run.json"))
     found = (r.get("details", r).get("table_alignment") or {}).get("found") or {}
     aligned = found.get("corrections") if found.get("kept") else None
@@ -98,9 +98,15 @@ def shared_shift(run, copy, seq, given_only=False):
             a_w, a_d = np.array(aligned[i][:3]), np.array(aligned[i][3:])
             turn = rotation(a_w) @ rotation(np.array(v["omega_rad"]))
             corrections[f] = (log_rotation(turn), rotation(a_w) @ np.array(v["delta_m"]) + a_d)
+    return corrections
+
+
+def shared_shift(run, copy, seq, given_only=False):
+    """The least-squares shift s with which the corrected training cameras see every object centre
+    (the given ones, uncorrected, with `given_only`)."""
     given = cameras(f"{copy}/train_0/scene_camera.json")
     exact = cameras(f"{seq}/train_0/scene_camera.json")
-    return meeting_shift(corrections, given, exact, object_centres(seq))
+    return meeting_shift(corrections_of(run, given_only), given, exact, object_centres(seq))
 
 
 def within(run, seq, shift, trand, tmp, tag):
