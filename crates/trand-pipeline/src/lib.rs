@@ -24,6 +24,7 @@ pub mod detect;
 pub mod export;
 pub mod front_fill;
 pub mod mask_agreement;
+pub mod mask_edges;
 pub mod new_camera;
 pub mod openings;
 pub mod outputs;

@@ -203,6 +203,8 @@ pub struct Reconstruction {
     pub support_applied: bool,
     /// How the training masks' ids were taken.
     pub identity: IdentityReport,
+    /// The training masks grown to meet their photograph's edge.
+    pub grown_to_image_edges: Vec<EdgeGrowth>,
     /// Whether the opening prior was decided again with the settled pose corrections.
     pub openings_retaken: bool,
     /// How well the training masks agree (measured when the opening prior applies), and whether
@@ -274,6 +276,16 @@ pub struct TrainViews {
     pub channels: Channels,
     /// How the masks' ids were taken.
     pub identity: IdentityReport,
+    /// The masks grown to meet their photograph's edge ([`crate::mask_edges`]).
+    pub grown_to_image_edges: Vec<EdgeGrowth>,
+}
+
+/// One training mask grown to meet its photograph's edge, in native pixels.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct EdgeGrowth {
+    pub view: String,
+    pub object_id: u16,
+    pub px: usize,
 }
 
 /// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
@@ -325,20 +337,22 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         report.association = Some(assoc);
     }
     let channels = targets::channel_map(&object_ids, opts.num_objects)?;
+    let edges: Vec<targets::MaskEdges> = chosen
+        .iter()
+        .map(|v| targets::MaskEdges::for_view(&opts.train.image_loss, v))
+        .collect();
     let build_at = |factor: u32| {
         chosen
             .iter()
-            .map(|v| {
+            .zip(&edges)
+            .map(|(v, e)| {
                 targets::build(
                     v,
                     &channels,
                     opts.num_objects,
                     opts.train.background,
                     sup,
-                    (
-                        factor,
-                        targets::MaskEdges::from_config(&opts.train.image_loss),
-                    ),
+                    (factor, e),
                 )
             })
             .collect::<Result<Vec<_>>>()
@@ -349,11 +363,26 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
         .filter_map(|v| v.rgb.as_ref().map(|i| (i.width, i.height)))
         .fold((u32::MAX, u32::MAX), |a, b| (a.0.min(b.0), a.1.min(b.1)));
     let coarse = targets::coarse_views(&opts.train.resolution, opts.downsample, native, build_at)?;
+    let grown_to_image_edges = chosen
+        .iter()
+        .zip(&edges)
+        .flat_map(|(v, e)| {
+            e.to_image_edge
+                .iter()
+                .filter(|g| g.1 > 0)
+                .map(|&(object_id, px)| EdgeGrowth {
+                    view: v.name.clone(),
+                    object_id,
+                    px,
+                })
+        })
+        .collect();
     Ok(TrainViews {
         views,
         coarse,
         channels,
         identity: report,
+        grown_to_image_edges,
     })
 }
 
@@ -946,6 +975,7 @@ pub fn reconstruct_from(
         mut coarse,
         channels,
         identity,
+        grown_to_image_edges,
     } = train_views(seq, opts)?;
     let support_applied = opts.init_mode == InitMode::VisualHull
         && opts.method.supervision() == Supervision::ObjectAware
@@ -1107,6 +1137,7 @@ pub fn reconstruct_from(
         initial_surfels: initial,
         vessel_tops,
         identity,
+        grown_to_image_edges,
         support_applied,
         openings_retaken,
         mask_agreement,

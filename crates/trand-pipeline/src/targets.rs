@@ -11,6 +11,7 @@
 
 use trand_core::Camera;
 use trand_io::View;
+use trand_train::config::MaskSnap;
 
 use crate::{PipelineError, Result};
 
@@ -216,21 +217,44 @@ pub fn check_channels(
 }
 
 /// How a view's mask edges are treated, in native pixels
-/// ([`trand_train::config::ImageLossConfig`]'s `boundary_tolerance_px` and `mask_grow_px`).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// ([`trand_train::config::ImageLossConfig`]'s `boundary_tolerance_px`, `mask_grow_px` and
+/// `snap_masks`).
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct MaskEdges {
     /// The background band's radius, rounded up at the view's resolution.
     pub tolerance_px: f64,
     /// How far every object grows into the background, rounded down at the view's resolution.
     pub grow_px: f64,
+    /// `(instance id, px)`: how far each object grows besides, to meet the photograph's edge
+    /// ([`crate::mask_edges`]); an id not listed grows by `grow_px` alone.
+    pub to_image_edge: Vec<(u16, usize)>,
 }
 
 impl MaskEdges {
-    pub fn from_config(il: &trand_train::config::ImageLossConfig) -> Self {
+    /// The edges of `view`'s masks under `il`; with [`MaskSnap::GrowToImageEdges`] this reads where
+    /// each mask's edge lies in the photograph (a view without image or mask grows by `grow_px`).
+    pub fn for_view(il: &trand_train::config::ImageLossConfig, view: &View) -> Self {
+        let to_image_edge = match (il.snap_masks, &view.rgb, &view.instance) {
+            (MaskSnap::GrowToImageEdges, Some(rgb), Some(inst)) if rgb.same_size(inst) => {
+                crate::mask_edges::growth(inst, &crate::mask_edges::edge_strength(rgb))
+            }
+            _ => Vec::new(),
+        };
         Self {
             tolerance_px: il.boundary_tolerance_px,
             grow_px: il.mask_grow_px,
+            to_image_edge,
         }
+    }
+
+    /// How many pixels object `id` grows by at a view downsampled by `factor` (rounded down).
+    fn radius(&self, id: u16, factor: usize) -> usize {
+        let snap = self
+            .to_image_edge
+            .iter()
+            .find(|e| e.0 == id)
+            .map_or(0, |e| e.1);
+        ((self.grow_px.max(0.0) + snap as f64) / factor as f64).floor() as usize
     }
 }
 
@@ -242,7 +266,7 @@ pub fn build(
     num_objects: usize,
     background: [f32; 3],
     supervision: Supervision,
-    (downsample, edges): (u32, MaskEdges),
+    (downsample, edges): (u32, &MaskEdges),
 ) -> Result<TrainView> {
     let err = |what: String| PipelineError::View {
         view: view.name.clone(),
@@ -316,11 +340,10 @@ pub fn build(
         .chunks_exact(3)
         .map(|p| (p[0] + p[1] + p[2]) / 3.0)
         .collect();
-    let grow = match supervision {
-        Supervision::ObjectAware => (edges.grow_px.max(0.0) / f as f64).floor() as usize,
-        Supervision::FullImage => 0,
+    let ids = match supervision {
+        Supervision::ObjectAware => grow_objects_by(&given_ids, w, h, |id| edges.radius(id, f)),
+        Supervision::FullImage => given_ids.clone(),
     };
-    let ids = grow_objects(&given_ids, w, h, grow);
     // The blocks tile the image from its top-left corner and drop the last `w0 mod f` columns (and
     // rows), so the image is `w0 / f` wide, not the rounded `w0 / f` of the scaled intrinsics.
     let mut intrinsics = view.camera.intrinsics.scaled(1.0 / f as f64);
@@ -390,12 +413,28 @@ pub fn build(
 /// the id of its nearest object pixel in `given` (ties: the first offset in the order below), so objects
 /// never grow into each other or through a grown pixel.
 pub fn grow_objects(given: &[u16], w: usize, h: usize, radius: usize) -> Vec<u16> {
+    grow_objects_by(given, w, h, |_| radius)
+}
+
+/// [`grow_objects`] with a radius per object: a background pixel takes the id of the nearest object
+/// pixel of `given` whose object's `radius` reaches it.
+pub fn grow_objects_by(
+    given: &[u16],
+    w: usize,
+    h: usize,
+    radius: impl Fn(u16) -> usize,
+) -> Vec<u16> {
     assert_eq!(given.len(), w * h, "grow: id map size");
     let mut ids = given.to_vec();
-    if radius == 0 {
+    let mut present: Vec<u16> = given.iter().copied().filter(|&i| i != 0).collect();
+    present.sort_unstable();
+    present.dedup();
+    let reach: Vec<(u16, isize)> = present.iter().map(|&i| (i, radius(i) as isize)).collect();
+    let r = reach.iter().map(|x| x.1).max().unwrap_or(0);
+    if r == 0 {
         return ids;
     }
-    let r = radius as isize;
+    let reach_of = |id: u16| reach.iter().find(|x| x.0 == id).map_or(0, |x| x.1);
     // The disc's offsets, nearest first (then row-major), so the first object pixel met is the nearest.
     let mut offsets: Vec<(isize, isize)> = (-r..=r)
         .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
@@ -411,11 +450,10 @@ pub fn grow_objects(given: &[u16], w: usize, h: usize, radius: usize) -> Vec<u16
             }
             ids[o] = offsets
                 .iter()
-                .map(|&(dx, dy)| (x + dx, y + dy))
-                .filter(|&(xx, yy)| (0..wi).contains(&xx) && (0..hi).contains(&yy))
-                .map(|(xx, yy)| given[(yy * wi + xx) as usize])
-                .find(|&id| id != 0)
-                .unwrap_or(0);
+                .filter(|&&(xx, yy)| (0..wi).contains(&(x + xx)) && (0..hi).contains(&(y + yy)))
+                .map(|&(dx, dy)| (given[((y + dy) * wi + x + dx) as usize], dx * dx + dy * dy))
+                .find(|&(id, d2)| id != 0 && d2 <= reach_of(id) * reach_of(id))
+                .map_or(0, |(id, _)| id);
         }
     }
     ids
@@ -446,15 +484,15 @@ mod tests {
     fn band_of(px: f64) -> MaskEdges {
         MaskEdges {
             tolerance_px: px,
-            grow_px: 0.0,
+            ..MaskEdges::default()
         }
     }
 
     /// Every object grown by `px` native pixels, no band.
     fn grown_by(px: f64) -> MaskEdges {
         MaskEdges {
-            tolerance_px: 0.0,
             grow_px: px,
+            ..MaskEdges::default()
         }
     }
 
@@ -468,14 +506,14 @@ mod tests {
     }
 
     /// Object-aware targets of `view`, whose one object has id 3 (channel 1).
-    fn object_targets(view: &View, scale: (u32, MaskEdges)) -> Result<TrainView> {
+    fn object_targets(view: &View, (f, edges): (u32, MaskEdges)) -> Result<TrainView> {
         build(
             view,
             &[(3, 1)],
             15,
             [0.0; 3],
             Supervision::ObjectAware,
-            scale,
+            (f, &edges),
         )
     }
 
@@ -507,7 +545,7 @@ mod tests {
             15,
             [0.0; 3],
             Supervision::FullImage,
-            (1, band_of(3.0)),
+            (1, &band_of(3.0)),
         )
         .expect("masks are not used");
         assert_eq!(t.rgb.len(), 24);
@@ -519,7 +557,7 @@ mod tests {
                 15,
                 [0.0; 3],
                 Supervision::ObjectAware,
-                (1, as_given())
+                (1, &as_given())
             )
             .is_err()
         );
@@ -573,6 +611,54 @@ mod tests {
             &[3, 3, 3, 5, 5, 5, 5],
             "diagonal (1, 1) is within 2"
         );
+    }
+
+    #[test]
+    fn each_object_grows_by_its_own_radius_and_only_into_the_background() {
+        // 7 x 3 as above: object 3 grows by 2, object 5 by none; the pixel at x = 3 (2 from
+        // object 3, 1 from object 5) now goes to 3, and object 5 keeps its pixels.
+        let mut given = vec![0u16; 21];
+        given[8] = 3;
+        given[11] = 5;
+        given[12] = 5;
+        let ids = grow_objects_by(&given, 7, 3, |id| if id == 3 { 2 } else { 0 });
+        assert_eq!(&ids[7..14], &[3, 3, 3, 3, 5, 5, 0]);
+        assert_eq!(&ids[0..7], &[3, 3, 3, 0, 0, 0, 0]);
+        assert_eq!(grow_objects_by(&given, 7, 3, |_| 0), given);
+    }
+
+    #[test]
+    fn a_mask_cut_inside_the_photographs_edge_is_grown_back_for_the_losses_not_for_the_priors() {
+        // A bright 15 x 15 square on a dark image; its mask is the 11 x 11 square 2 px inside it.
+        let (w, h) = (30u32, 28u32);
+        let inside = |o: u32, m: u32| {
+            (8 + m..23 - m).contains(&(o % w)) && (6 + m..21 - m).contains(&(o / w))
+        };
+        let mut view = grey_view(
+            w,
+            h,
+            (0..w * h).map(|o| 3 * u16::from(inside(o, 2))).collect(),
+        );
+        view.rgb = trand_io::Image::from_vec(
+            w,
+            h,
+            3,
+            (0..w * h)
+                .flat_map(|o| [if inside(o, 0) { 230 } else { 20 }; 3])
+                .collect(),
+        );
+        let il = trand_train::config::ImageLossConfig::default();
+        let edges = MaskEdges::for_view(&il, &view);
+        assert_eq!(edges.to_image_edge, vec![(3, 2)]);
+        let t = object_targets(&view, (1, edges)).unwrap();
+        // The 11 x 11 square grown by a 2 px disc: the 15 x 15 less three pixels at each corner.
+        assert_eq!(t.ids.iter().filter(|&&i| i == 3).count(), 225 - 4 * 3);
+        assert_eq!(t.given_ids.iter().filter(|&&i| i == 3).count(), 121);
+        let off = trand_train::config::ImageLossConfig {
+            snap_masks: MaskSnap::AsGiven,
+            ..il
+        };
+        assert!(MaskEdges::for_view(&off, &view).to_image_edge.is_empty());
     }
 
     #[test]

@@ -316,6 +316,7 @@ pub fn update_with_cancel(
             map = remaining.clone();
         }
         let ds = opts.downsample.unwrap_or(scale.downsample);
+        let edges = targets::MaskEdges::for_view(&opts.train.image_loss, &view);
         let build = |factor: u32| {
             targets::build(
                 &view,
@@ -323,10 +324,7 @@ pub fn update_with_cancel(
                 surfels.num_objects,
                 opts.train.background,
                 supervision,
-                (
-                    factor,
-                    targets::MaskEdges::from_config(&opts.train.image_loss),
-                ),
+                (factor, &edges),
             )
         };
         let views = [build(ds)?];

@@ -136,6 +136,7 @@ impl Scene {
             "vessel_tops": rec.vessel_tops,
             "mask_agreement": { "measured": rec.mask_agreement, "rule": opts.overhangs, "overhangs": rec.overhangs },
             "identity": rec.identity,
+            "mask_edges": { "rule": opts.train.image_loss.snap_masks, "grown_to_image_edges": rec.grown_to_image_edges },
             "table_height": rec.table,
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
             "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },

@@ -309,6 +309,22 @@ pub struct ImageLossConfig {
     /// exact masks, or errors either way, it costs more than it gains, hence 0 (the masks as given) by
     /// default (BENCHMARKS.md §8, §10).
     pub mask_grow_px: f64,
+    /// How each training mask's edge is taken: grown to where its photograph has its edge (the
+    /// default), or as given.
+    pub snap_masks: MaskSnap,
+}
+
+/// How each training mask's edge is taken (`trand_pipeline::mask_edges` reads the image's edge).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MaskSnap {
+    /// Every (view, object) mask grows, by up to 4 native pixels and never into another object, to
+    /// where the photograph's edge is strongest along it. An eroded mask costs several times what
+    /// the same dilation costs, so a mask is never shrunk (BENCHMARKS.md §8).
+    #[default]
+    GrowToImageEdges,
+    /// The masks as given.
+    AsGiven,
 }
 
 impl Default for ImageLossConfig {
@@ -320,6 +336,7 @@ impl Default for ImageLossConfig {
             dice: 1.0,
             boundary_tolerance_px: 0.0,
             mask_grow_px: 0.0,
+            snap_masks: MaskSnap::GrowToImageEdges,
         }
     }
 }
@@ -914,6 +931,16 @@ mod tests {
             ),
             Err(ConfigError::Invalid(_))
         ));
+        let snap = |v: &str| TrainConfig::from_toml_str(&format!("[image_loss]\nsnap_masks = {v}"));
+        assert!(matches!(snap("\"sometimes\""), Err(ConfigError::Parse(_))));
+        assert_eq!(
+            snap("\"as-given\"").unwrap().image_loss.snap_masks,
+            MaskSnap::AsGiven
+        );
+        assert_eq!(
+            TrainConfig::default().image_loss.snap_masks,
+            MaskSnap::GrowToImageEdges
+        );
         for key in ["boundary_tolerance_px", "mask_grow_px"] {
             for px in ["-1.0", "nan", "1e9"] {
                 let r = TrainConfig::from_toml_str(&format!("[image_loss]\n{key} = {px}"));

@@ -372,6 +372,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             serde_json::json!({ "measured": rec.mask_agreement, "rule": opts.overhangs, "overhangs": rec.overhangs }),
         )
         .detail("identity", &rec.identity)
+        .detail(
+            "mask_edges",
+            serde_json::json!({
+                "rule": opts.train.image_loss.snap_masks,
+                "grown_to_image_edges": rec.grown_to_image_edges,
+            }),
+        )
         .detail("table_height", rec.table)
         .detail(
             "table_alignment",
