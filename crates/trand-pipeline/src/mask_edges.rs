@@ -31,7 +31,7 @@ use trand_io::{InstanceMap, Rgb8Image};
 /// 1–3 px).
 pub const SEARCH_PX: usize = 4;
 
-/// Masks of fewer pixels keep their edge: their rings are too short to read.
+/// Masks of fewer pixels keep their edge: their boundaries are too short to read.
 pub const MIN_PIXELS: usize = 50;
 
 /// Edge strength per pixel (row-major `w × h`): the Sobel gradient magnitude of the RGB channel
@@ -85,6 +85,18 @@ pub fn growth(inst: &InstanceMap, strength: &[f32]) -> Vec<(u16, usize)> {
         .collect()
 }
 
+/// The offsets `(dx, dy) ≠ (0, 0)` of a disc of radius `r` (`dx² + dy² ≤ r²`), nearest first, then
+/// row-major: the first pixel of a kind met in this order is the nearest one.
+pub fn disc_offsets(r: usize) -> Vec<(isize, isize)> {
+    let r = r as isize;
+    let mut offsets: Vec<(isize, isize)> = (-r..=r)
+        .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| (dx, dy) != (0, 0) && dx * dx + dy * dy <= r * r)
+        .collect();
+    offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
+    offsets
+}
+
 /// One object's mask in a window `SEARCH_PX + 1` pixels larger than its bounding box, with every
 /// pixel's squared distance to the nearest pixel on the other side of the mask's edge (capped:
 /// `u32::MAX` past `SEARCH_PX`).
@@ -118,12 +130,7 @@ impl Window {
         let inside: Vec<bool> = (0..w * h)
             .map(|o| inst.data[(y0 + o / w) * iw + x0 + o % w] == id)
             .collect();
-        let r = SEARCH_PX as isize;
-        let mut offsets: Vec<(isize, isize)> = (-r..=r)
-            .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
-            .filter(|&(dx, dy)| (dx, dy) != (0, 0) && dx * dx + dy * dy <= r * r)
-            .collect();
-        offsets.sort_by_key(|&(dx, dy)| dx * dx + dy * dy);
+        let offsets = disc_offsets(SEARCH_PX);
         let dist2 = (0..w * h)
             .map(|o| {
                 let (x, y) = ((o % w) as isize, (o / w) as isize);

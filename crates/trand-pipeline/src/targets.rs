@@ -435,12 +435,8 @@ pub fn grow_objects_by(
         return ids;
     }
     let reach_of = |id: u16| reach.iter().find(|x| x.0 == id).map_or(0, |x| x.1);
-    // The disc's offsets, nearest first (then row-major), so the first object pixel met is the nearest.
-    let mut offsets: Vec<(isize, isize)> = (-r..=r)
-        .flat_map(|dy| (-r..=r).map(move |dx| (dx, dy)))
-        .filter(|&(dx, dy)| (dx, dy) != (0, 0) && dx * dx + dy * dy <= r * r)
-        .collect();
-    offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
+    // Nearest first (then row-major), so the first object pixel met is the nearest.
+    let offsets = crate::mask_edges::disc_offsets(r as usize);
     let (wi, hi) = (w as isize, h as isize);
     for y in 0..hi {
         for x in 0..wi {
