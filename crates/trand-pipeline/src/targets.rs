@@ -583,13 +583,18 @@ mod tests {
         assert_eq!(band(2, 3.0), [1, 2, 4, 5]);
     }
 
-    #[test]
-    fn grown_masks_claim_the_background_disc_around_each_object_but_never_another_object() {
-        // 7 x 3: object 3 at x = 1, object 5 at x = 4..5, row y = 1; background elsewhere.
+    /// 7 x 3: object 3 at x = 1, object 5 at x = 4..5, row y = 1; background elsewhere.
+    fn two_objects_in_a_row() -> Vec<u16> {
         let mut given = vec![0u16; 21];
         given[8] = 3;
         given[11] = 5;
         given[12] = 5;
+        given
+    }
+
+    #[test]
+    fn grown_masks_claim_the_background_disc_around_each_object_but_never_another_object() {
+        let given = two_objects_in_a_row();
         let ids = grow_objects(&given, 7, 3, 1);
         #[rustfmt::skip]
         let want = [
@@ -611,12 +616,9 @@ mod tests {
 
     #[test]
     fn each_object_grows_by_its_own_radius_and_only_into_the_background() {
-        // 7 x 3 as above: object 3 grows by 2, object 5 by none; the pixel at x = 3 (2 from
-        // object 3, 1 from object 5) now goes to 3, and object 5 keeps its pixels.
-        let mut given = vec![0u16; 21];
-        given[8] = 3;
-        given[11] = 5;
-        given[12] = 5;
+        // Object 3 grows by 2, object 5 by none; the pixel at x = 3 (2 from object 3, 1 from
+        // object 5) now goes to 3, and object 5 keeps its pixels.
+        let given = two_objects_in_a_row();
         let ids = grow_objects_by(&given, 7, 3, |id| if id == 3 { 2 } else { 0 });
         assert_eq!(&ids[7..14], &[3, 3, 3, 3, 5, 5, 0]);
         assert_eq!(&ids[0..7], &[3, 3, 3, 0, 0, 0, 0]);
