@@ -3,6 +3,8 @@
 //!
 //! * [`associate`]: per-image instance ids made consistent across the t = 0 views by voting in a
 //!   voxel hull.
+//! * [`missed_masks`]: masks a segmenter missed, drawn in by the association again through corrected
+//!   cameras (the table-aligned ones, or a first training pass's).
 //! * [`targets`]: per training view, the three images the surfels are fitted to — RGB with the
 //!   background blacked out, the colour-coded instance mask, and the K-channel one-hot object map.
 //! * [`trainer`]: one optimisation loop (render → losses → backward → Adam → densify), used at t = 0
@@ -25,6 +27,7 @@ pub mod export;
 pub mod front_fill;
 pub mod mask_agreement;
 pub mod mask_edges;
+pub mod missed_masks;
 pub mod new_camera;
 pub mod openings;
 pub mod outputs;

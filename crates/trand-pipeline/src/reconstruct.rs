@@ -24,6 +24,7 @@ use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::front_fill::{self, FrontFill};
 use crate::mask_agreement::MaskAgreement;
+use crate::missed_masks::{self, MissedMasks, RedrawReport, Redrawn};
 use crate::openings::overhang::{OverhangRule, Overhangs};
 use crate::openings::{Baseline, Closed, Opening, Top, VesselTop};
 use crate::refill;
@@ -105,6 +106,8 @@ pub struct ReconstructOptions {
     /// When surfels overhanging an opening's lip are carved with it (see
     /// [`crate::openings::overhang`]).
     pub overhangs: OverhangRule,
+    /// Which cameras the masks a segmenter missed are drawn in through (see [`crate::missed_masks`]).
+    pub missed_masks: MissedMasks,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -124,6 +127,7 @@ impl Default for ReconstructOptions {
             front_fill: FrontFill::HullFront,
             table_align: TableAlign::Texture,
             overhangs: OverhangRule::Carve,
+            missed_masks: MissedMasks::CorrectedCameras,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -222,6 +226,9 @@ pub struct Reconstruction {
     pub table: TableLevel,
     /// The training cameras' alignment on the table before training, `None` where it was not tried.
     pub table_alignment: Option<TableAlignment>,
+    /// Missed masks drawn again through corrected cameras ([`crate::missed_masks`]), `None` where
+    /// none were.
+    pub missed_masks: Option<RedrawReport>,
 }
 
 impl Reconstruction {
@@ -291,6 +298,16 @@ pub struct EdgeGrowth {
 /// Builds the training views of t = 0, their channels, and how the masks' ids were taken (see
 /// [`Identity`]; with `Auto`, associated only when the ids disagree with the geometry).
 pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainViews> {
+    train_views_associated_through(seq, opts, None)
+}
+
+/// [`train_views`], the masks associated through `cameras` (one per training view, in their order)
+/// instead of the views' own; the views keep their own.
+pub fn train_views_associated_through(
+    seq: &Sequence,
+    opts: &ReconstructOptions,
+    cameras: Option<&[trand_core::Camera]>,
+) -> Result<TrainViews> {
     let mut chosen = match seq.train_selection {
         TrainSelection::Ring => select_train_views(&seq.train_t0, view_count(opts.views)?),
         TrainSelection::Listed => seq.train_t0.clone(),
@@ -320,10 +337,14 @@ pub fn train_views(seq: &Sequence, opts: &ReconstructOptions) -> Result<TrainVie
     };
     let mut object_ids = seq.object_ids.clone();
     if sup == Supervision::ObjectAware && opts.identity != Identity::ObjectIds {
-        let cams: Vec<_> = chosen.iter().map(|v| v.camera).collect();
+        let mut through = chosen.clone();
+        if let Some(c) = cameras {
+            through.iter_mut().zip(c).for_each(|(v, c)| v.camera = *c);
+        }
+        let cams: Vec<_> = through.iter().map(|v| v.camera).collect();
         let b = hull_box_for(&cams)?;
         let (assoc, maps) = associate(
-            &chosen,
+            &through,
             glam::DVec3::from_array(b.min),
             glam::DVec3::from_array(b.max),
         )?;
@@ -970,17 +991,29 @@ pub fn reconstruct_from(
 ) -> Result<Reconstruction> {
     opts.validate()?;
     let t0 = Instant::now();
+    let mut tv = train_views(seq, opts)?;
+    let support_applied = opts.init_mode == InitMode::VisualHull
+        && opts.method.supervision() == Supervision::ObjectAware
+        && support_test(&tv.views, opts)?.is_some();
+    let table_alignment = align_on_table(&mut tv.views, &mut tv.coarse, opts, support_applied);
+    let missed_masks = match start {
+        Start::Surfels(..) => None,
+        _ => redraw_missed_masks(
+            seq,
+            opts,
+            &mut tv,
+            table_alignment.as_ref(),
+            support_applied,
+            cancel,
+        )?,
+    };
     let TrainViews {
-        mut views,
-        mut coarse,
+        views,
+        coarse,
         channels,
         identity,
         grown_to_image_edges,
-    } = train_views(seq, opts)?;
-    let support_applied = opts.init_mode == InitMode::VisualHull
-        && opts.method.supervision() == Supervision::ObjectAware
-        && support_test(&views, opts)?.is_some();
-    let table_alignment = align_on_table(&mut views, &mut coarse, opts, support_applied);
+    } = tv;
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
     let mask_agreement = match opts.openings {
         OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => Some(
@@ -993,10 +1026,7 @@ pub fn reconstruct_from(
         Some(m) => opts.overhangs.decide(m.disagree()),
         None => Overhangs::Kept,
     };
-    let mut cfg = opts.train.clone();
-    if opts.method != Method::Trand {
-        cfg.object_loss.active = Activation::Never;
-    }
+    let mut cfg = train_config(opts);
     let fingerprint = training_fingerprint(&views);
     let options = toml::to_string(opts)
         .map_err(|e| PipelineError::Invalid(format!("serialising the options: {e}")))?;
@@ -1147,7 +1177,113 @@ pub fn reconstruct_from(
         poses,
         table,
         table_alignment,
+        missed_masks,
     })
+}
+
+/// [`missed_masks`]: where the association filled a mask a segmenter missed, `tv` rebuilt with the masks
+/// associated again through corrected cameras (the table-aligned ones, or a first pass's), its views
+/// keeping their own cameras (aligned by `alignment` where it was kept).
+fn redraw_missed_masks(
+    seq: &Sequence,
+    opts: &ReconstructOptions,
+    tv: &mut TrainViews,
+    alignment: Option<&TableAlignment>,
+    support_applied: bool,
+    cancel: &AtomicBool,
+) -> Result<Option<RedrawReport>> {
+    let filled = |tv: &TrainViews| -> Vec<(String, u16, usize)> {
+        let Some(a) = tv.identity.association.as_ref() else {
+            return Vec::new();
+        };
+        a.views
+            .iter()
+            .flat_map(|v| v.filled.iter().map(|&(id, px)| (v.view.clone(), id, px)))
+            .collect()
+    };
+    let filled_given = filled(tv);
+    let aligned = alignment.is_some_and(|a| a.kept);
+    let refined = opts.train.pose.refines();
+    let through =
+        missed_masks::redraw_through(opts.missed_masks, aligned, refined, support_applied);
+    let (Some(through), false) = (through, filled_given.is_empty()) else {
+        return Ok(None);
+    };
+    let corrections = match through {
+        Redrawn::TableAligned => Vec::new(),
+        Redrawn::FirstPass => first_pass(tv, opts, cancel)?,
+    };
+    let cameras: Vec<trand_core::Camera> = tv
+        .views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| match corrections.get(i) {
+            Some(x) => trand_train::pose::corrected(*x, &v.camera),
+            None => v.camera,
+        })
+        .collect();
+    let mut redrawn = train_views_associated_through(seq, opts, Some(&cameras))?;
+    if let Some(a) = alignment.filter(|a| a.kept) {
+        let levels = std::iter::once(&mut redrawn.views[..])
+            .chain(redrawn.coarse.iter_mut().map(|c| &mut c.views[..]));
+        for level in levels {
+            for (i, v) in level.iter_mut().enumerate() {
+                v.camera = a.camera(i, &v.camera);
+            }
+        }
+    }
+    let filled_corrected = filled(&redrawn);
+    *tv = redrawn;
+    Ok(Some(RedrawReport {
+        through,
+        corrections,
+        filled_given,
+        filled_corrected,
+    }))
+}
+
+/// The training configuration of `opts`' method: without the object-aware 3D loss but for TRAN-D's.
+fn train_config(opts: &ReconstructOptions) -> TrainConfig {
+    let mut cfg = opts.train.clone();
+    if opts.method != Method::Trand {
+        cfg.object_loss.active = Activation::Never;
+    }
+    cfg
+}
+
+/// [`missed_masks`]'s first pass: the run's first iterations, up to the corrections' settling, trained
+/// from the initial surfels and carved as the run itself would; each view's correction then.
+fn first_pass(
+    tv: &TrainViews,
+    opts: &ReconstructOptions,
+    cancel: &AtomicBool,
+) -> Result<Vec<[f64; 6]>> {
+    let cfg = train_config(opts);
+    let trand_train::PoseRefinement::Refine { settled_at, .. } = cfg.pose else {
+        return Ok(vec![[0.0; 6]; tv.views.len()]);
+    };
+    let (openings, _) = find_openings(&tv.views, opts)?;
+    let overhangs = match opts.openings {
+        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => {
+            let m = crate::mask_agreement::measure(&tv.views, &openings_box(&tv.views)?);
+            opts.overhangs.decide(m.disagree())
+        }
+        _ => Overhangs::Kept,
+    };
+    let views = &tv.views;
+    let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
+    let until = settled_at.min(cfg.iterations);
+    let mut trainer = Trainer::new(
+        initial_surfels(views, opts)?,
+        cfg,
+        views,
+        extent,
+        opts.method.supervision(),
+    )
+    .with_coarse(&tv.coarse);
+    let mut cut = |t: &mut Trainer<'_>| carve(t, &openings, overhangs);
+    cut(&mut trainer);
+    missed_masks::train_until(trainer, until, &mut cut, cancel)
 }
 
 /// The training views' cameras aligned on the table ([`table_align`]) where `opts` ask for it, the

@@ -68,6 +68,11 @@ impl PoseRefinement {
         }
     }
 
+    /// Whether the poses are refined at all.
+    pub fn refines(self) -> bool {
+        self != PoseRefinement::Fixed
+    }
+
     /// Whether the corrections count as settled at `iteration` (never when the poses are fixed).
     pub fn settled(self, iteration: u32) -> bool {
         matches!(self, PoseRefinement::Refine { settled_at, .. } if iteration >= settled_at)

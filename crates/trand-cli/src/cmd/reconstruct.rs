@@ -22,6 +22,7 @@ use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::front_fill::FrontFill;
+use trand_pipeline::missed_masks::MissedMasks;
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
 use trand_pipeline::table_align::TableAlign;
@@ -79,6 +80,12 @@ pub struct Args {
     /// with the poses refined and the views spread; run.json `table_alignment`) or off.
     #[arg(long, value_enum)]
     pub table_align: Option<TableAlign>,
+    /// Masks a segmenter missed, drawn in from the other views: corrected-cameras (default: where
+    /// one was filled, drawn again through the table-aligned cameras or, on a plain table, those of
+    /// a first pass trained until the pose corrections settle; run.json `missed_masks`) or
+    /// given-cameras.
+    #[arg(long, value_enum)]
+    pub missed_masks: Option<MissedMasks>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -132,6 +139,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(f) = a.front_fill {
         o.front_fill = f;
+    }
+    if let Some(m) = a.missed_masks {
+        o.missed_masks = m;
     }
     if let Some(t) = a.table_align {
         o.table_align = t;
@@ -383,6 +393,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .detail(
             "table_alignment",
             serde_json::json!({ "mode": opts.table_align, "found": rec.table_alignment }),
+        )
+        .detail(
+            "missed_masks",
+            serde_json::json!({ "mode": opts.missed_masks, "redrawn": rec.missed_masks }),
         )
         .detail(
             "front_fill",
