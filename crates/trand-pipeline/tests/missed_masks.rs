@@ -7,14 +7,10 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use glam::DVec3;
 use trand_core::Camera;
-use trand_pipeline::ReconstructOptions;
 use trand_pipeline::missed_masks::Redrawn;
 use trand_pipeline::reconstruct::{Start, reconstruct_from, train_views_associated_through};
-use trand_train::config::ResolutionSchedule;
 use trand_train::pose::corrected;
-use trand_train::{PoseCorrections, PoseRefinement};
 
 /// IoU of the pixels labelled `id` in `a` and in `b`.
 fn iou(a: &[u16], b: &[u16], id: u16) -> f64 {
@@ -31,28 +27,12 @@ fn a_missed_mask_drawn_again_through_the_first_pass_cameras_covers_more_of_its_o
     let dir = trand_io::ScratchDir::new("missed-masks").expect("scratch");
     let mut seq = common::tiny(5, dir.path());
     let n = seq.train_t0.len();
-    let mut wrong = PoseCorrections::new(n);
-    for (i, x) in wrong.xi.iter_mut().enumerate() {
-        let a = i as f64 * 2.1;
-        let axis = DVec3::new(a.cos(), a.sin(), 0.5 * (3.0 * a).cos()).normalize();
-        let dir = DVec3::new((a + 1.0).sin(), (2.0 * a).cos(), 0.3).normalize();
-        let (w, d) = (axis * 3f64.to_radians(), dir * 0.01);
-        *x = [w.x, w.y, w.z, d.x, d.y, d.z];
-    }
+    let wrong = common::wrong_poses(n);
     let exact_camera: Vec<Camera> = seq.train_t0.iter().map(|v| v.camera).collect();
     for (i, v) in seq.train_t0.iter_mut().enumerate() {
         v.camera = wrong.camera(i, &v.camera);
     }
-    let mut opts = ReconstructOptions::default();
-    opts.train.iterations = 300;
-    opts.train.resolution = ResolutionSchedule::Full;
-    opts.train.pose = PoseRefinement::Refine {
-        from_iteration: 20,
-        settled_at: 150,
-        lr_rotation: 5e-4,
-        lr_translation: 5e-4,
-        final_ratio: 0.1,
-    };
+    let opts = common::short_refined_run();
     // The first training view misses its largest object.
     let given = train_views_associated_through(&seq, &opts, None).expect("views");
     let first = &given.views[0];

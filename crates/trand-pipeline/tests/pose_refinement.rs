@@ -32,30 +32,12 @@ fn refined_cameras_reproject_closer_to_the_true_ones() {
     let dir = trand_io::ScratchDir::new("pose-refinement").expect("scratch");
     let mut seq = common::tiny(5, dir.path());
     let n = seq.train_t0.len();
-    // Each view's world is moved by ξ_p (3° about its own axis, 1 cm along its own direction): the
-    // correction that undoes it is −ξ_p to first order, up to the mean (the gauge).
-    let mut wrong = PoseCorrections::new(n);
-    for (i, x) in wrong.xi.iter_mut().enumerate() {
-        let a = i as f64 * 2.1;
-        let axis = DVec3::new(a.cos(), a.sin(), 0.5 * (3.0 * a).cos()).normalize();
-        let dir = DVec3::new((a + 1.0).sin(), (2.0 * a).cos(), 0.3).normalize();
-        let (w, d) = (axis * 3f64.to_radians(), dir * 0.01);
-        *x = [w.x, w.y, w.z, d.x, d.y, d.z];
-    }
+    let wrong = common::wrong_poses(n);
     let truth: Vec<Camera> = seq.train_t0.iter().map(|v| v.camera).collect();
     for (i, v) in seq.train_t0.iter_mut().enumerate() {
         v.camera = wrong.camera(i, &truth[i]);
     }
-    let mut opts = ReconstructOptions::default();
-    opts.train.iterations = 300;
-    opts.train.resolution = ResolutionSchedule::Full;
-    opts.train.pose = PoseRefinement::Refine {
-        from_iteration: 20,
-        settled_at: 150,
-        lr_rotation: 5e-4,
-        lr_translation: 5e-4,
-        final_ratio: 0.1,
-    };
+    let opts = common::short_refined_run();
     let cancel = AtomicBool::new(false);
     let rec = reconstruct_from(&seq, &opts, Start::Init, &mut |_, _| {}, &cancel).expect("runs");
     let pts: Vec<DVec3> = rec
