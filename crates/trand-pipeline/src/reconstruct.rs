@@ -1015,17 +1015,7 @@ pub fn reconstruct_from(
         grown_to_image_edges,
     } = tv;
     let (mut openings, mut vessel_tops) = find_openings(&views, opts)?;
-    let mask_agreement = match opts.openings {
-        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => Some(
-            crate::mask_agreement::measure(&views, &openings_box(&views)?),
-        ),
-        _ => None,
-    };
-    // No opening prior (or no object-aware supervision): nothing is carved, overhangs neither.
-    let overhangs = match &mask_agreement {
-        Some(m) => opts.overhangs.decide(m.disagree()),
-        None => Overhangs::Kept,
-    };
+    let (mask_agreement, overhangs) = overhang_decision(&views, opts)?;
     let mut cfg = train_config(opts);
     let fingerprint = training_fingerprint(&views);
     let options = toml::to_string(opts)
@@ -1223,14 +1213,8 @@ fn redraw_missed_masks(
         })
         .collect();
     let mut redrawn = train_views_associated_through(seq, opts, Some(&cameras))?;
-    if let Some(a) = alignment.filter(|a| a.kept) {
-        let levels = std::iter::once(&mut redrawn.views[..])
-            .chain(redrawn.coarse.iter_mut().map(|c| &mut c.views[..]));
-        for level in levels {
-            for (i, v) in level.iter_mut().enumerate() {
-                v.camera = a.camera(i, &v.camera);
-            }
-        }
+    if let Some(a) = alignment {
+        a.apply(&mut redrawn.views, &mut redrawn.coarse);
     }
     let filled_corrected = filled(&redrawn);
     *tv = redrawn;
@@ -1240,6 +1224,26 @@ fn redraw_missed_masks(
         filled_given,
         filled_corrected,
     }))
+}
+
+/// How well `views`' masks agree (measured where the opening prior applies) and the overhang rule
+/// it decides. No opening prior (or no object-aware supervision): nothing is carved, overhangs
+/// neither.
+fn overhang_decision(
+    views: &[TrainView],
+    opts: &ReconstructOptions,
+) -> Result<(Option<MaskAgreement>, Overhangs)> {
+    let agreement = match opts.openings {
+        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => {
+            Some(crate::mask_agreement::measure(views, &openings_box(views)?))
+        }
+        _ => None,
+    };
+    let overhangs = match &agreement {
+        Some(m) => opts.overhangs.decide(m.disagree()),
+        None => Overhangs::Kept,
+    };
+    Ok((agreement, overhangs))
 }
 
 /// The training configuration of `opts`' method: without the object-aware 3D loss but for TRAN-D's.
@@ -1263,13 +1267,7 @@ fn first_pass(
         return Ok(vec![[0.0; 6]; tv.views.len()]);
     };
     let (openings, _) = find_openings(&tv.views, opts)?;
-    let overhangs = match opts.openings {
-        OpeningPrior::Carve if opts.method.supervision() == Supervision::ObjectAware => {
-            let m = crate::mask_agreement::measure(&tv.views, &openings_box(&tv.views)?);
-            opts.overhangs.decide(m.disagree())
-        }
-        _ => Overhangs::Kept,
-    };
+    let (_, overhangs) = overhang_decision(&tv.views, opts)?;
     let views = &tv.views;
     let extent = camera_extent(&views.iter().map(|v| v.camera).collect::<Vec<_>>());
     let until = settled_at.min(cfg.iterations);
@@ -1295,20 +1293,12 @@ fn align_on_table(
     opts: &ReconstructOptions,
     support_applied: bool,
 ) -> Option<TableAlignment> {
-    let refined = opts.train.pose != trand_train::PoseRefinement::Fixed;
+    let refined = opts.train.pose.refines();
     if opts.table_align == TableAlign::Off || !refined || support_applied {
         return None;
     }
     let alignment = table_align::align(views)?;
-    if alignment.kept {
-        let levels =
-            std::iter::once(&mut *views).chain(coarse.iter_mut().map(|c| &mut c.views[..]));
-        for level in levels {
-            for (i, v) in level.iter_mut().enumerate() {
-                v.camera = alignment.camera(i, &v.camera);
-            }
-        }
-    }
+    alignment.apply(views, coarse);
     Some(alignment)
 }
 
@@ -1332,7 +1322,7 @@ fn level_table(
         .map(|(i, v)| poses.camera(i, &v.camera))
         .collect();
     let fit = table_height::measure(views, &cameras);
-    let refined = refinement != trand_train::PoseRefinement::Fixed;
+    let refined = refinement.refines();
     let reading = fit.and_then(|f| f.reading());
     let shift = match fit {
         Some(f) if refined && f.height_m.abs() >= MIN_TABLE_SHIFT_M => f.share() * f.height_m,

@@ -40,7 +40,7 @@ use trand_core::Camera;
 use trand_train::pose::{corrected, rotation};
 
 use crate::table_height::{self, MASK_MARGIN_SHARE, TableFit, widen};
-use crate::targets::TrainView;
+use crate::targets::{CoarseViews, TrainView};
 
 mod level;
 
@@ -107,6 +107,20 @@ impl TableAlignment {
             corrected(self.corrections[i], camera)
         } else {
             *camera
+        }
+    }
+
+    /// Every level's views (training resolution and coarse) moved to the cameras training uses:
+    /// aligned when kept, as given otherwise.
+    pub fn apply(&self, views: &mut [TrainView], coarse: &mut [CoarseViews]) {
+        if !self.kept {
+            return;
+        }
+        let levels = std::iter::once(views).chain(coarse.iter_mut().map(|c| &mut c.views[..]));
+        for level in levels {
+            for (i, v) in level.iter_mut().enumerate() {
+                v.camera = self.camera(i, &v.camera);
+            }
         }
     }
 }
