@@ -24,7 +24,7 @@ use crate::associate::{Association, Identity, associate};
 use crate::checkpoint::{Checkpoint, Snapshot};
 use crate::front_fill::{self, FrontFill};
 use crate::mask_agreement::MaskAgreement;
-use crate::missed_masks::{self, MissedMasks, RedrawReport, Redrawn};
+use crate::missed_masks::{self, MissedFill, MissedMasks, RedrawReport, Redrawn};
 use crate::openings::overhang::{OverhangRule, Overhangs};
 use crate::openings::{Baseline, Closed, Opening, Top, VesselTop};
 use crate::refill;
@@ -108,6 +108,8 @@ pub struct ReconstructOptions {
     pub overhangs: OverhangRule,
     /// Which cameras the masks a segmenter missed are drawn in through (see [`crate::missed_masks`]).
     pub missed_masks: MissedMasks,
+    /// How the losses supervise the pixels drawn in for a missed mask (see [`crate::missed_masks`]).
+    pub missed_fill: MissedFill,
     pub train: TrainConfig,
     /// Object channels K (background included).
     pub num_objects: usize,
@@ -128,6 +130,7 @@ impl Default for ReconstructOptions {
             table_align: TableAlign::Texture,
             overhangs: OverhangRule::Carve,
             missed_masks: MissedMasks::CorrectedCameras,
+            missed_fill: MissedFill::Unknown,
             train: TrainConfig::default(),
             num_objects: trand_core::DEFAULT_NUM_OBJECTS,
         }
@@ -1007,6 +1010,9 @@ pub fn reconstruct_from(
             cancel,
         )?,
     };
+    if opts.missed_fill == MissedFill::Unknown {
+        leave_drawn_unknown(&mut tv);
+    }
     let TrainViews {
         views,
         coarse,
@@ -1224,6 +1230,23 @@ fn redraw_missed_masks(
         filled_given,
         filled_corrected,
     }))
+}
+
+/// [`MissedFill::Unknown`]: the pixels the association drew in for missed masks leave the losses at
+/// every level ([`missed_masks::leave_unknown`]).
+fn leave_drawn_unknown(tv: &mut TrainViews) {
+    let Some(a) = tv.identity.association.as_ref() else {
+        return;
+    };
+    let drawn: Vec<(String, u16)> = a
+        .views
+        .iter()
+        .flat_map(|v| v.filled.iter().map(|&(id, _)| (v.view.clone(), id)))
+        .collect();
+    missed_masks::leave_unknown(&mut tv.views, &drawn);
+    for level in &mut tv.coarse {
+        missed_masks::leave_unknown(&mut level.views, &drawn);
+    }
 }
 
 /// How well `views`' masks agree (measured where the opening prior applies) and the overhang rule

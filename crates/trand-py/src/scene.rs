@@ -141,7 +141,11 @@ impl Scene {
             "support_prior": { "mode": opts.support, "applied": rec.support_applied },
             "front_fill": { "mode": opts.front_fill, "surfels_added": rec.front_fill_added },
             "table_alignment": { "mode": opts.table_align, "found": rec.table_alignment },
-            "missed_masks": { "mode": opts.missed_masks, "redrawn": rec.missed_masks },
+            "missed_masks": {
+                "mode": opts.missed_masks,
+                "fill": opts.missed_fill,
+                "redrawn": rec.missed_masks,
+            },
             "timings": {
                 "preprocess_s": rec.preprocess_s,
                 "optimise_s": rec.optimise_s,

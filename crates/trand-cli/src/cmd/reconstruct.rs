@@ -22,7 +22,7 @@ use trand_io::{LoadOptions, Sequence, read_sequence_with};
 use trand_pipeline::associate::Identity;
 use trand_pipeline::checkpoint::Checkpoint;
 use trand_pipeline::front_fill::FrontFill;
-use trand_pipeline::missed_masks::MissedMasks;
+use trand_pipeline::missed_masks::{MissedFill, MissedMasks};
 use trand_pipeline::reconstruct::{OpeningPrior, Start, reconstruct_from};
 use trand_pipeline::support::SupportPrior;
 use trand_pipeline::table_align::TableAlign;
@@ -86,6 +86,10 @@ pub struct Args {
     /// given-cameras.
     #[arg(long, value_enum)]
     pub missed_masks: Option<MissedMasks>,
+    /// Pixels drawn in for a missed mask: unknown (default: left out of the losses, kept in the
+    /// visual-hull initialisation) or object (taught as the drawn object's).
+    #[arg(long, value_enum)]
+    pub missed_fill: Option<MissedFill>,
     /// Object channels K, background included (default 15).
     #[arg(long)]
     pub objects: Option<usize>,
@@ -142,6 +146,9 @@ pub fn options(a: &Args) -> anyhow::Result<ReconstructOptions> {
     }
     if let Some(m) = a.missed_masks {
         o.missed_masks = m;
+    }
+    if let Some(f) = a.missed_fill {
+        o.missed_fill = f;
     }
     if let Some(t) = a.table_align {
         o.table_align = t;
@@ -396,7 +403,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         )
         .detail(
             "missed_masks",
-            serde_json::json!({ "mode": opts.missed_masks, "redrawn": rec.missed_masks }),
+            serde_json::json!({
+                "mode": opts.missed_masks,
+                "fill": opts.missed_fill,
+                "redrawn": rec.missed_masks,
+            }),
         )
         .detail(
             "front_fill",
