@@ -148,6 +148,14 @@ impl Association {
     pub fn changes_masks(&self) -> bool {
         !self.consistent || self.views.iter().any(|v| !v.filled.is_empty())
     }
+
+    /// Every missed mask drawn in: `(view, object id, pixels)`, in view order.
+    pub fn drawn(&self) -> Vec<(String, u16, usize)> {
+        self.views
+            .iter()
+            .flat_map(|v| v.filled.iter().map(|&(id, px)| (v.view.clone(), id, px)))
+            .collect()
+    }
 }
 
 /// Kept voxels of the voting hull with the id each view shows there (0: background or unseen).

@@ -104,15 +104,15 @@ pub fn redraw_through(
     }
 }
 
-/// [`MissedFill::Unknown`]: in each view named in `drawn` (view name, object id), the pixels of the
-/// objects drawn there leave the losses: labelled background (the Dice counts moved with them) and
+/// [`MissedFill::Unknown`]: in each view named in `drawn` (view name, object id, pixels:
+/// [`crate::associate::Association::drawn`]), the pixels of the objects drawn there leave the losses: labelled background (the Dice counts moved with them) and
 /// added to the view's band. The ids, which the visual-hull initialisation reads, keep them.
-pub fn leave_unknown(views: &mut [TrainView], drawn: &[(String, u16)]) {
+pub fn leave_unknown(views: &mut [TrainView], drawn: &[(String, u16, usize)]) {
     for v in views.iter_mut() {
         let ids: Vec<u16> = drawn
             .iter()
-            .filter(|(name, _)| *name == v.name)
-            .map(|&(_, id)| id)
+            .filter(|(name, ..)| *name == v.name)
+            .map(|&(_, id, _)| id)
             .collect();
         if ids.is_empty() || v.labels.is_empty() {
             continue;
@@ -170,14 +170,18 @@ mod tests {
     fn drawn_pixels_leave_the_losses_of_their_view_only_and_stay_in_the_ids() {
         let ids = vec![0, 1, 2, 2, 2, 0];
         let mut views = vec![view("a", ids.clone()), view("b", ids.clone())];
-        leave_unknown(&mut views, &[("a".into(), 2)]);
+        leave_unknown(&mut views, &[("a".into(), 2, 3)]);
         let a = &views[0];
         assert_eq!(a.labels, [0, 1, 0, 0, 0, 0]);
         assert_eq!(a.label_counts, [5.0, 1.0, 0.0]);
         assert_eq!(a.band, [false, false, true, true, true, false]);
         assert_eq!(a.ids, ids, "the visual hull still sees the drawing");
         let b = &views[1];
-        assert_eq!(b.labels, [0, 1, 2, 2, 2, 0], "another view keeps its labels");
+        assert_eq!(
+            b.labels,
+            [0, 1, 2, 2, 2, 0],
+            "another view keeps its labels"
+        );
         assert!(b.band.is_empty());
     }
 

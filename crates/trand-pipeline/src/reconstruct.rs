@@ -1188,14 +1188,11 @@ fn redraw_missed_masks(
     support_applied: bool,
     cancel: &AtomicBool,
 ) -> Result<Option<RedrawReport>> {
-    let filled = |tv: &TrainViews| -> Vec<(String, u16, usize)> {
-        let Some(a) = tv.identity.association.as_ref() else {
-            return Vec::new();
-        };
-        a.views
-            .iter()
-            .flat_map(|v| v.filled.iter().map(|&(id, px)| (v.view.clone(), id, px)))
-            .collect()
+    let filled = |tv: &TrainViews| {
+        tv.identity
+            .association
+            .as_ref()
+            .map_or_else(Vec::new, Association::drawn)
     };
     let filled_given = filled(tv);
     let aligned = alignment.is_some_and(|a| a.kept);
@@ -1235,14 +1232,9 @@ fn redraw_missed_masks(
 /// [`MissedFill::Unknown`]: the pixels the association drew in for missed masks leave the losses at
 /// every level ([`missed_masks::leave_unknown`]).
 fn leave_drawn_unknown(tv: &mut TrainViews) {
-    let Some(a) = tv.identity.association.as_ref() else {
+    let Some(drawn) = tv.identity.association.as_ref().map(Association::drawn) else {
         return;
     };
-    let drawn: Vec<(String, u16)> = a
-        .views
-        .iter()
-        .flat_map(|v| v.filled.iter().map(|&(id, _)| (v.view.clone(), id)))
-        .collect();
     missed_masks::leave_unknown(&mut tv.views, &drawn);
     for level in &mut tv.coarse {
         missed_masks::leave_unknown(&mut level.views, &drawn);
